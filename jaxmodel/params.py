@@ -1,0 +1,204 @@
+"""Vehicle and filter parameters: one table, one NamedTuple, one JSON schema.
+
+Every parameter is declared exactly once, in ``PARAMETER_TABLE``: its key (the
+flat JSON key of SPEC §3 and the FMU variable name), default, unit and meaning.
+``Params`` is a NamedTuple of float64 arrays built from that table, so it is a
+pytree that can be jit-ed, vmap-ed and differentiated.  ``sensor_axle`` is the
+only non-numeric key: ``"front"`` is stored as 1.0 and ``"rear"`` as 0.0.
+
+The JSON file is flat (SPEC §3).  Unknown keys are refused with an error naming
+them; missing keys take the documented defaults below.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+DEVIATION_TABLE_SIZE = 36
+"""Compass deviation table entries, one per 10° of raw heading (US 4,734,863 FIG. 8A block 4)."""
+
+
+class ParamSpec(NamedTuple):
+    key: str
+    default: Any
+    unit: str
+    description: str
+
+
+# fmt: off
+PARAMETER_TABLE: tuple[ParamSpec, ...] = (
+    # --- vehicle geometry, US 4,788,645 -------------------------------------------------
+    ParamSpec("sensor_axle", "front", "", "wheel sensors on the 'front' (Ackerman, eq. 14) or 'rear' axle (T = T_R)"),
+    # Seed defect: P is 'approx. 1/8' in the summary and 'approximately 1/3' at eq. (14); its own
+    # definition (single Pitman arm length over half the track, ~0.1 m / 0.78 m) gives ~1/8.
+    ParamSpec("P", 0.125, "1", "Pitman-arm ratio, US 4,788,645 eq. (14), in [0, 1)"),
+    ParamSpec("B", 2.7, "m", "wheel base, US 4,788,645 eq. (14)"),
+    ParamSpec("T_F", 1.55, "m", "nominal front track, US 4,788,645 eq. (14)"),
+    ParamSpec("T_R", 1.55, "m", "rear track (sensor_axle = rear), US 4,788,645 eq. (8)"),
+    ParamSpec("a", 1.0e-4, "s2/m2", "velocity coefficient of eq. (8): dtheta_w = dD / (T (1 + a V^2)); initial value when refined"),
+    ParamSpec("T_C", 3000.0, "rad.m2/s2", "filter constant of the refinement of a, US 4,788,645 eq. (13): a <- a + ERROR / T_C"),
+    ParamSpec("D_N", 400.0, "m", "nominal distance constant of the heading filter, US 4,734,863 FIG. 8D/8G"),
+    ParamSpec("dpp_left", 0.02, "m", "distance per pulse of the left wheel counter"),
+    ParamSpec("dpp_right", 0.02, "m", "distance per pulse of the right wheel counter"),
+    ParamSpec("counter_modulus", 65536.0, "1", "wheel pulse counters wrap at this value"),
+    # --- compass, US 4,734,863 FIG. 8A / 8C ---------------------------------------------
+    ParamSpec("variation_deg", 0.0, "deg", "magnetic variation V, east positive (FIG. 8A block 5)"),
+    ParamSpec("X0", 0.0, "compass", "compass x offset (FIG. 8A block 2)"),
+    ParamSpec("Y0", 0.0, "compass", "compass y offset (FIG. 8A block 2)"),
+    ParamSpec("rotation_deg", 0.0, "deg", "compass mounting rotation R (FIG. 8A block 5)"),
+    ParamSpec("field_magnitude", 0.0, "compass",
+              "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive as a "
+              "distance-weighted running median-like average of |B| (see jaxmodel.compass)"),
+    ParamSpec("deviation_deg", (0.0,) * DEVIATION_TABLE_SIZE, "deg",
+              "compass deviation table (FIG. 8A block 4), 36 entries at raw headings 0, 10, ..., 350 deg, "
+              "interpolated periodically"),
+    # --- refinement of a, US 4,788,645 eq. (9)-(13) -------------------------------------
+    ParamSpec("refine_M_deg", 3.0, "deg", "clip M of ERROR, eq. (12)"),
+    ParamSpec("refine_turn_min_deg", 45.0, "deg", "gate (1): minimum turn for refining a"),
+    ParamSpec("refine_speed_min", 6.7056, "m/s", "gate (2): minimum speed during the turn (15 mph)"),
+    ParamSpec("refine_speed_max", 20.1168, "m/s", "gate (2): maximum speed during the turn (45 mph)"),
+    ParamSpec("refine_compass_max_error_deg", 4.0, "deg", "gate (3): compass consistent while E_C stays below this"),
+    ParamSpec("refine_smoothing_m", 30.0, "m", "distance over which the compass-minus-wheel offset is averaged before/after a turn"),
+    ParamSpec("turn_curvature", 0.01, "1", "|dD/AD| above which the vehicle is turning (about 150 m radius)"),
+    ParamSpec("straight_distance_m", 25.0, "m", "straight distance that ends a turn"),
+    # --- curvature window, US 4,788,645 (the seed evaluates once per second) --------------
+    ParamSpec("curvature_window_m", 4.0, "m", "travelled-distance constant of the exponential window over which dD/AD is evaluated"),
+    ParamSpec("curvature_clip", 0.98, "1", "curvature is clipped at this fraction of the geometric maximum of eq. (14)"),
+    # --- heading filter, US 4,734,863 FIG. 8C-8G ------------------------------------------
+    ParamSpec("compass_error_scale_deg", 60.0, "deg", "E_C = |B_M - B_E| / B_E x this (FIG. 8C block 5)"),
+    ParamSpec("compass_error_floor_deg", 1.0, "deg", "floor of E_C: a compass is never better than this"),
+    ParamSpec("wheel_error_K", 0.1, "1", "E_WI = |alpha K| (FIG. 8D block 2)"),
+    ParamSpec("sdd_T", 6.0, "1", "time weighting T of SDD (FIG. 8E/A block 2)"),
+    ParamSpec("heading_error_K", 1.0e4, "1/rad2", "K of E_h = SDD K (E_W - E_C) (FIG. 8E block 2)"),
+    ParamSpec("K1", 1.0, "1", "F = (E_h + K1)/K1 when the wheels are the worse sensor (FIG. 8E block 4)"),
+    ParamSpec("K2", 1.0, "1", "F = K2/(|E_h| + K2) when the compass is the worse sensor (FIG. 8E block 5)"),
+    ParamSpec("F_update_distance_m", 10.0, "m", "threshold distance between updates of F (FIG. 8 block 6)"),
+    ParamSpec("map_threshold_deg", 10.0, "deg", "map heading replaces the compass when it agrees with the estimate within this (FIG. 8F)"),
+    ParamSpec("reliability_scale_deg", 2.0, "deg", "heading_reliability = 1 / (1 + bound / this)"),
+    ParamSpec("max_speed", 90.0, "m/s", "plausibility: larger wheel speeds are counter faults and are skipped"),
+)
+# fmt: on
+
+PARAMETER_SPECS: dict[str, ParamSpec] = {p.key: p for p in PARAMETER_TABLE}
+PARAMETER_KEYS: tuple[str, ...] = tuple(p.key for p in PARAMETER_TABLE)
+
+Params = NamedTuple("Params", [(k, jnp.ndarray) for k in PARAMETER_KEYS])  # type: ignore[misc]
+Params.__doc__ = "Estimator parameters, float64 arrays (scalars, or shape (36,) for deviation_deg). See PARAMETER_TABLE."
+
+
+class ParameterError(ValueError):
+    """A parameter file or mapping is invalid; the message names the key."""
+
+
+def _to_number(key: str, value: Any) -> Any:
+    if key == "sensor_axle":
+        if value in ("front", 1, 1.0, True):
+            return 1.0
+        if value in ("rear", 0, 0.0, False):
+            return 0.0
+        raise ParameterError(f"parameter 'sensor_axle' must be 'front' or 'rear', got {value!r}")
+    if key == "deviation_deg":
+        arr = np.asarray(value, dtype=np.float64)
+        if arr.shape != (DEVIATION_TABLE_SIZE,):
+            raise ParameterError(f"parameter 'deviation_deg' must be a list of {DEVIATION_TABLE_SIZE} numbers, got shape {arr.shape}")
+        return arr
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ParameterError(f"parameter {key!r} must be a number, got {value!r}")
+    return float(value)
+
+
+def make_params(values: Mapping[str, Any] | None = None, **overrides: Any) -> Params:
+    """Params from defaults, updated by ``values`` and ``overrides`` (JSON-style values)."""
+    if not jax.config.jax_enable_x64:
+        raise ParameterError("odocompass needs 64-bit JAX: call jax.config.update('jax_enable_x64', True) "
+                             "or work inside `with jax.enable_x64(True):`")
+    merged: dict[str, Any] = {p.key: p.default for p in PARAMETER_TABLE}
+    for source in (values or {}, overrides):
+        for key, value in source.items():
+            if key not in PARAMETER_SPECS:
+                raise ParameterError(f"unknown parameter key {key!r}")
+            merged[key] = value
+    return Params(**{k: jnp.asarray(_to_number(k, v), dtype=jnp.float64) for k, v in merged.items()})
+
+
+def validate_params(params: Params) -> None:
+    """Raise ParameterError naming every physically invalid parameter (used before estimation and by the FMU)."""
+    problems = []
+    def val(k):
+        return np.asarray(getattr(params, k), dtype=np.float64)
+    for k in PARAMETER_KEYS:
+        if not np.all(np.isfinite(val(k))):
+            problems.append(f"{k} is not finite")
+    if not 0.0 <= float(val("P")) < 1.0:
+        problems.append(f"P={float(val('P'))} outside [0, 1)")
+    for k in ("B", "T_F", "T_R", "dpp_left", "dpp_right", "counter_modulus", "T_C", "D_N",
+              "curvature_window_m", "sdd_T", "K1", "K2", "F_update_distance_m", "max_speed",
+              "refine_smoothing_m", "straight_distance_m", "reliability_scale_deg"):
+        if not float(val(k)) > 0.0:
+            problems.append(f"{k}={float(val(k))} must be positive")
+    if float(val("sensor_axle")) not in (0.0, 1.0):
+        problems.append(f"sensor_axle={float(val('sensor_axle'))} must be front (1) or rear (0)")
+    if not 0.0 < float(val("curvature_clip")) < 1.0:
+        problems.append(f"curvature_clip={float(val('curvature_clip'))} must be in (0, 1)")
+    if problems:
+        raise ParameterError("invalid parameters: " + "; ".join(problems))
+
+
+def params_to_dict(params: Params) -> dict[str, Any]:
+    """JSON-ready dict of a (single, unbatched) Params."""
+    out: dict[str, Any] = {}
+    for k in PARAMETER_KEYS:
+        v = np.asarray(getattr(params, k), dtype=np.float64)
+        if k == "sensor_axle":
+            out[k] = "front" if float(v) >= 0.5 else "rear"
+        elif k == "deviation_deg":
+            out[k] = [float(x) for x in v]
+        else:
+            out[k] = float(v)
+    return out
+
+
+def load_params(path: str | Path) -> tuple[Params, dict[str, Any]]:
+    """Read a parameter JSON file. Returns (params, extra) where extra holds the optional ``report``.
+
+    Raises ParameterError with the file name and the offending key.
+    """
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ParameterError(f"{path}: parameter file not found") from None
+    except json.JSONDecodeError as exc:
+        raise ParameterError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    if not isinstance(raw, dict):
+        raise ParameterError(f"{path}: expected a JSON object of parameter keys")
+    extra = {"report": raw.pop("report")} if "report" in raw else {}
+    try:
+        params = make_params(raw)
+    except ParameterError as exc:
+        raise ParameterError(f"{path}: {exc}") from None
+    return params, extra
+
+
+def save_params(path: str | Path, params: Params, report: Mapping[str, Any] | None = None) -> None:
+    """Write a flat parameter JSON file (plus an optional ``report`` object), atomically."""
+    path = Path(path)
+    data = params_to_dict(params)
+    if report is not None:
+        data["report"] = report
+    tmp = path.with_name(path.name + ".tmp")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+    tmp.replace(path)
+
+
+def deg(x):
+    """Degrees to radians (a name that reads well next to the *_deg keys)."""
+    return x * (math.pi / 180.0)

@@ -1,0 +1,92 @@
+"""Online refinement of the velocity coefficient a, US 4,788,645 eq. (9)-(13).
+
+Over a turn, the wheel heading change dtheta_w is compared with the compass heading change
+dtheta_C.  Both are measured through the compass-minus-wheel offset off = H_C - H_W averaged
+over the straight stretches before and after the turn, so
+dtheta_C - dtheta_w = off_after - off_before, and single noisy compass samples do not enter.
+
+ERROR = dtheta_w - dtheta_C if dtheta_w >= 0 else dtheta_C - dtheta_w  (eq. 11)
+ERROR clipped to [-M, M]                                                (eq. 12)
+a <- a + ERROR / T_C                                                    (eq. 13)
+
+only when (1) the turn exceeds 45 deg, (2) the speed stays within 15-45 mph while turning,
+and (3) the compass is consistent (E_C below a bound throughout).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from .angles import safe_div, wrap
+from .params import deg
+
+
+class RefineState(NamedTuple):
+    offset_before: jnp.ndarray   # smoothed H_C - H_W on the straight before a turn, rad
+    offset_after_sum: jnp.ndarray  # distance-weighted sum of wrap(DELTA - offset_before) after the turn, rad.m
+    offset_after_weight: jnp.ndarray  # distance with a valid compass in that sum, m
+    straight_run: jnp.ndarray    # straight distance since the turn, m
+    turn_active: jnp.ndarray     # 1.0 while a turn is being measured
+    turn_angle: jnp.ndarray      # accumulated wheel heading change of the turn, rad
+    gates_ok: jnp.ndarray        # 1.0 while gates (2) and (3) hold
+    updates: jnp.ndarray         # number of accepted refinements
+
+
+def init_refine_state():
+    z = jnp.zeros((), jnp.float64)
+    return RefineState(z, z, z, z, z, z, jnp.ones((), jnp.float64), z)
+
+
+def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, compass_ok, enabled):
+    """One sample of the refinement.  Returns (new RefineState, new a).
+
+    alpha: wheel heading change of this sample (rad); delta: wrapped H_C - H_W (rad);
+    d_t: distance this sample (m); curvature: windowed dD/AD; e_c: compass bound (rad).
+    """
+    turning = jnp.abs(curvature) > params.turn_curvature
+    compass_good = compass_ok & (e_c < deg(params.refine_compass_max_error_deg))
+    speed_ok = (speed >= params.refine_speed_min) & (speed <= params.refine_speed_max)
+    active = rs.turn_active > 0.5
+
+    # Straight, no turn pending: follow the offset over refine_smoothing_m.
+    gain = jnp.clip(d_t / params.refine_smoothing_m, 0.0, 1.0)
+    follow = (~active) & (~turning) & compass_ok
+    offset_before = jnp.where(follow, wrap(rs.offset_before + gain * wrap(delta - rs.offset_before)), rs.offset_before)
+
+    starts = (~active) & turning
+    active_now = active | starts
+    turn_angle = jnp.where(starts, alpha, jnp.where(active, rs.turn_angle + alpha, 0.0))
+    gates_ok = jnp.where(starts, 1.0, rs.gates_ok)
+    gate_fail = active_now & (~compass_good | (turning & ~speed_ok))
+    gates_ok = jnp.where(gate_fail, 0.0, gates_ok)
+
+    # After the turn: average the offset over the straight run; turning again restarts it.
+    in_run = active_now & (~turning)
+    run_weight = jnp.where(in_run & compass_ok, d_t, 0.0)
+    straight_run = jnp.where(in_run, rs.straight_run + d_t, 0.0)
+    after_sum = jnp.where(in_run, rs.offset_after_sum + run_weight * wrap(delta - offset_before), 0.0)
+    # straight_run counts all distance; the mean uses only distance with a valid compass
+    after_weight = jnp.where(in_run, rs.offset_after_weight + run_weight, 0.0)
+
+    ends = active_now & (straight_run >= params.straight_distance_m)
+    mean_shift = safe_div(after_sum, after_weight)  # off_after - off_before
+    big_turn = jnp.abs(turn_angle) >= deg(params.refine_turn_min_deg)
+    accept = ends & big_turn & (gates_ok > 0.5) & (after_weight > 0.5 * straight_run) & enabled
+    error = jnp.where(turn_angle >= 0.0, -mean_shift, mean_shift)  # eq. (11)
+    error = jnp.clip(error, -deg(params.refine_M_deg), deg(params.refine_M_deg))  # eq. (12)
+    a_new = jnp.where(accept, a + error / params.T_C, a)  # eq. (13)
+
+    offset_before = jnp.where(ends, wrap(offset_before + mean_shift), offset_before)
+    new = RefineState(
+        offset_before=offset_before,
+        offset_after_sum=jnp.where(ends, 0.0, after_sum),
+        offset_after_weight=jnp.where(ends, 0.0, after_weight),
+        straight_run=jnp.where(ends, 0.0, straight_run),
+        turn_active=jnp.where(ends, 0.0, jnp.where(active_now, 1.0, 0.0)),
+        turn_angle=jnp.where(ends, 0.0, turn_angle),
+        gates_ok=jnp.where(ends, 1.0, gates_ok),
+        updates=rs.updates + jnp.where(accept, 1.0, 0.0),
+    )
+    return new, a_new
