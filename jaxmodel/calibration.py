@@ -1,7 +1,40 @@
 """Continuous left/right distance-per-pulse calibration, EP 0619873.
 
-PLACEHOLDER (issue 3): the state carries the current correction; the update is not yet
-implemented, so dpp_left/dpp_right stay at their parameter values.
+The correction value of the seed (claims 1, 4, 12-14) is the ratio k = dpp_right / dpp_left.
+On a straight path both wheels travel the same distance, so the pulse counts satisfy
+N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
+
+* Check windows (claims 2-3, "continuously bounded"): pulse counts are totalled over windows
+  of ``cal_check_distance_m`` travelled metres.  Per 10 Hz sample the ratio is mostly pulse
+  quantization (one pulse in 50-100), so the bound is checked per window: the window's
+  curvature with the current coefficients, c = (N_L dpp_L - N_R dpp_R) / AD, must stay within
+  ``cal_ratio_bound``.  A window out of bound (a turn), with an implausible sample, or with
+  the wheels counting in opposite directions ends the stretch and discards it.
+* Stretches: consecutive bounded windows are summed until ``cal_stretch_distance_m``; then the
+  stretch gives k_s = N_L / N_R (the measured relationship of claim 12).
+* Intensity (claims 5-11): w = w_compass * w_sanity.
+  - w_compass = exp(-0.5 (dpsi_C / cal_compass_tolerance_deg)^2), dpsi_C the compass heading
+    change over the stretch (mean compass heading of the last window minus that of the first,
+    circular means of the valid samples).  A compass that says the stretch was not straight
+    lowers the intensity (claims 6-9).  A stretch without compass at both ends gets
+    ``cal_no_compass_weight``.
+  - w_sanity = 1 / (1 + ((k_s/k - 1) / cal_sanity_bound)^2): counts whose ratio is far from
+    the current calibration are less sane.  Seed defect: claim 11 says "increasing the
+    intensity ... responsive to determining a low level of sanity", which contradicts the
+    purpose of the check (claim 5: determining the correctness of the measured relationship);
+    we follow the intent and lower the intensity of insane counts.
+* Filter (claim 13, "filtered correction ratio"): k <- k + g w (k_s - k) with
+  g = max(1 / (cal_prior_weight + W), 1 / cal_filter_stretches), W the accumulated intensity:
+  a growing-memory average at start-up (the parameter ratio counts as cal_prior_weight
+  stretches), then an exponential filter over about cal_filter_stretches stretches.
+  k stays within cal_max_correction (relative) of the parameter ratio.
+* New coefficients (claim 1): with the mean m = (dpp_left + dpp_right)/2 of the parameters,
+  dpp_left = 2m/(1+k), dpp_right = 2mk/(1+k).  Their mean is m exactly, so the distance scale
+  is untouched (only the difference between the wheels is calibrated).
+
+Everything is pure jnp with masks (no Python control flow on values) and safe divisions, so
+the function is jit/vmap/grad-safe; the gates have zero gradient, the intensities and the
+filter gain are smooth in the cal_* parameters.
 """
 
 from __future__ import annotations
@@ -10,17 +43,116 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from .angles import safe_div, wrap
+from .params import deg
+
 
 class CalibrationState(NamedTuple):
     dpp_left: jnp.ndarray   # m per pulse, current
     dpp_right: jnp.ndarray  # m per pulse, current
+    ratio: jnp.ndarray      # k = dpp_right / dpp_left, the filtered correction ratio
+    weight: jnp.ndarray     # accumulated intensity W of accepted stretches
+    updates: jnp.ndarray    # number of stretches that updated k
+    win_left: jnp.ndarray   # pulses of the current check window
+    win_right: jnp.ndarray
+    win_distance: jnp.ndarray  # m
+    win_sin: jnp.ndarray    # sums of sin/cos of valid compass headings in the window
+    win_cos: jnp.ndarray
+    win_sane: jnp.ndarray   # 1.0 while every sample of the window was plausible
+    str_left: jnp.ndarray   # pulses of the current straight stretch
+    str_right: jnp.ndarray
+    str_distance: jnp.ndarray  # m
+    str_heading0: jnp.ndarray  # compass heading of the stretch's first window, rad
+    str_heading0_ok: jnp.ndarray  # 1.0 if that window had a valid compass
+
+
+def _coefficients(params, ratio):
+    """dpp_left, dpp_right with ratio k and the parameters' mean (EP 0619873 claim 1)."""
+    two_m = params.dpp_left + params.dpp_right
+    return two_m / (1.0 + ratio), two_m * ratio / (1.0 + ratio)
 
 
 def init_calibration_state(params):
-    return CalibrationState(dpp_left=jnp.asarray(params.dpp_left, jnp.float64),
-                            dpp_right=jnp.asarray(params.dpp_right, jnp.float64))
+    z = jnp.zeros((), jnp.float64)
+    ratio = jnp.asarray(params.dpp_right / params.dpp_left, jnp.float64)
+    return CalibrationState(
+        dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
+        ratio=ratio, weight=z, updates=z, win_left=z, win_right=z, win_distance=z, win_sin=z, win_cos=z,
+        win_sane=jnp.ones((), jnp.float64), str_left=z, str_right=z, str_distance=z, str_heading0=z,
+        str_heading0_ok=z)
 
 
-def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_delta, compass_ok, odometer_ok, enabled):
-    """One sample of the calibration. pulses_*: decoded pulse increments of this sample."""
-    return cs
+def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok,
+                     enabled):
+    """One sample of the calibration.  Returns the new CalibrationState.
+
+    pulses_*: decoded pulse increments of this sample (0 when implausible); d_t: |AD| (m);
+    compass_heading: H_C (rad), used only where compass_ok; odometer_ok: the sample's counts
+    were plausible.  ``enabled`` is static (Config.calibration): off, the state passes through.
+    """
+    if not enabled:
+        return cs
+    one = jnp.ones((), jnp.float64)
+
+    # Check window: total the counts and the compass direction.
+    c_ok = compass_ok
+    h = jnp.where(c_ok, compass_heading, 0.0)
+    win_left = cs.win_left + pulses_left
+    win_right = cs.win_right + pulses_right
+    win_distance = cs.win_distance + d_t
+    win_sin = cs.win_sin + jnp.where(c_ok, jnp.sin(h), 0.0)
+    win_cos = cs.win_cos + jnp.where(c_ok, jnp.cos(h), 0.0)
+    win_sane = jnp.where(odometer_ok, cs.win_sane, 0.0)
+    win_done = win_distance >= params.cal_check_distance_m
+
+    # Bound of the measured relationship over the window (claims 2-3), with the current coefficients.
+    d_left, d_right = win_left * cs.dpp_left, win_right * cs.dpp_right
+    curvature = safe_div(d_left - d_right, 0.5 * (d_left + d_right))
+    same_sign = win_left * win_right > 0.0
+    bounded = same_sign & (win_sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
+    resultant = win_sin * win_sin + win_cos * win_cos
+    win_compass_ok = resultant > 1e-12
+    win_heading = jnp.arctan2(jnp.where(win_compass_ok, win_sin, 0.0), jnp.where(win_compass_ok, win_cos, 1.0))
+
+    # Stretch: extend by a bounded window, discard on an unbounded one.
+    extend = win_done & bounded
+    empty = cs.str_distance <= 0.0
+    str_left = jnp.where(extend, cs.str_left + win_left, jnp.where(win_done, 0.0, cs.str_left))
+    str_right = jnp.where(extend, cs.str_right + win_right, jnp.where(win_done, 0.0, cs.str_right))
+    str_distance = jnp.where(extend, cs.str_distance + win_distance, jnp.where(win_done, 0.0, cs.str_distance))
+    first = extend & empty
+    str_heading0 = jnp.where(first, win_heading, cs.str_heading0)
+    str_heading0_ok = jnp.where(first, jnp.where(win_compass_ok, 1.0, 0.0), cs.str_heading0_ok)
+    stretch_done = extend & (str_distance >= params.cal_stretch_distance_m)
+
+    # Correction value and its intensity (claims 5-14).
+    k_s = safe_div(str_left, str_right, fallback=1.0)
+    k = cs.ratio
+    dpsi = wrap(win_heading - str_heading0)
+    tol = deg(params.cal_compass_tolerance_deg)
+    both = win_compass_ok & (str_heading0_ok > 0.5)
+    w_compass = jnp.where(both, jnp.exp(-0.5 * (dpsi / tol) ** 2), params.cal_no_compass_weight)
+    deviation = k_s / k - 1.0
+    w_sanity = 1.0 / (1.0 + (deviation / params.cal_sanity_bound) ** 2)
+    w = jnp.where(stretch_done, w_compass * w_sanity, 0.0)
+    weight = cs.weight + w
+    gain = w * jnp.maximum(1.0 / (params.cal_prior_weight + weight), 1.0 / params.cal_filter_stretches)
+    gain = jnp.clip(gain, 0.0, 1.0)
+    k0 = params.dpp_right / params.dpp_left
+    lim = params.cal_max_correction * k0
+    ratio = jnp.clip(k + gain * (k_s - k), k0 - lim, k0 + lim)
+    ratio = jnp.where(stretch_done, ratio, k)
+    dpp_left, dpp_right = _coefficients(params, ratio)
+
+    zero_if = lambda cond, v: jnp.where(cond, 0.0, v)  # noqa: E731
+    return CalibrationState(
+        dpp_left=jnp.where(stretch_done, dpp_left, cs.dpp_left),
+        dpp_right=jnp.where(stretch_done, dpp_right, cs.dpp_right),
+        ratio=ratio, weight=weight, updates=cs.updates + jnp.where(stretch_done, 1.0, 0.0),
+        win_left=zero_if(win_done, win_left), win_right=zero_if(win_done, win_right),
+        win_distance=zero_if(win_done, win_distance), win_sin=zero_if(win_done, win_sin),
+        win_cos=zero_if(win_done, win_cos), win_sane=jnp.where(win_done, one, win_sane),
+        str_left=zero_if(stretch_done, str_left), str_right=zero_if(stretch_done, str_right),
+        str_distance=zero_if(stretch_done, str_distance), str_heading0=str_heading0,
+        str_heading0_ok=zero_if(stretch_done, str_heading0_ok),
+    )

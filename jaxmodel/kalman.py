@@ -1,6 +1,52 @@
-"""Kalman-filter mode, US 4,680,715.
+"""Kalman-filter mode, US 4,680,715 (``Config(mode="kalman")``).
 
-PLACEHOLDER (issue 3): passes the dead-reckoned heading and position through.
+An error-state Kalman filter with five states and small fixed-size jnp matrices:
+
+    x = [dth1, dth2, eps, dN, dE]
+
+* Course error of the dead-reckoned course (claim 1): dth = dth1 + dth2 + dth3, with
+  dth1 a first-order Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma
+  kf_gm_sigma_deg), dth2 a drift angle with an unknown start value whose pitch eps is a random
+  ramp (eps a random walk, PSD kf_ramp_psd; dth2 also gets a small random walk kf_drift_psd),
+  and dth3 Gaussian white noise (kf_white_sigma_deg), which is not a state: it enters the
+  compass measurement noise and the cross-track position noise.
+* North/east position errors dN, dE of the position computer, fed by the course error:
+  dN' = dN - s sin(th) dth, dE' = dE + s cos(th) dth (s: corrected distance of the sample).
+
+Our reading of the seed for an odometer + compass system (the seed's course reference is a
+compass or gyro): the course that is dead-reckoned is the wheel heading H_W (the odometer),
+so dth is the error of H_W; the compass course is a measurement of it, z = wrap(H_W - H_C),
+and the position fixes (fix_east_m, fix_north_m when fix_valid) measure dN, dE.
+
+Steps of claim 1, per sample:
+1. Plausibility of the speed V_M = AD/dt: implausible pulse counts (the odometer's own check)
+   or a speed change beyond kf_max_accel (plus one pulse of quantization each way) are not
+   used; the speed then slews towards the measurement at kf_max_accel (no lock-out).
+   Plausibility of the course: a wheel course change beyond kf_max_yaw_rate_deg_s (plus four
+   pulses of quantization) is treated as an error (added to the drift estimate dth2, so the
+   corrected course ignores it); the compass course is used only when valid (finite, field
+   above the minimum) and is down-weighted by its error bound E_C (FIG. 8C of US 4,734,863)
+   and by a soft innovation gate (kf_gate_sigma: R is inflated by d^2/gate^2 beyond the gate,
+   never a hard rejection, so no lock-out and the gradient stays defined).
+2. Deterministic corrections.  DF(V): the distance is pulses x the calibrated distance per
+   pulse (EP 0619873) times kf_speed_factor (a known, empirically derived scale error; 1 = none),
+   so DF(V) = (kf_speed_factor - 1) V_M.  DF(th): the known deterministic course corrections,
+   i.e. for the wheel course the Ackerman track and velocity term of US 4,788,645 eq. (8)/(14)
+   (already in H_W) and for the compass course offsets, deviation table, rotation and variation
+   of US 4,734,863 FIG. 8A (already in H_C).
+3. Corrected course C_th = H_W - C(th), C(th) = dth1^ + dth2^ (open loop: H_W itself is never
+   reset, the model's odometer keeps integrating it).  Position computer: CRN += CV cos(C_th),
+   CRE += CV sin(C_th) with the mid-sample course; the position corrections C(RN), C(RE) are fed
+   back after every update (closed loop: dN^, dE^ are reset to 0).
+4. Updates: compass course (scalar, H = [1, 1, 0, 0, 0]) with R = (kf_compass_sigma_deg^2 +
+   kf_white_sigma_deg^2 + (kf_compass_ec_weight E_C)^2) * max(1, kf_compass_corr_m / |AD|):
+   compass errors (anomalies) are correlated over kf_compass_corr_m of road, so a stationary
+   vehicle gains no information from repeating the same reading; position fixes (2-D,
+   R = kf_fix_sigma_m^2 I, white as claim 1 says).  Joseph form, then symmetrized.
+   The first fix is taken without the gate (it may be far from a dead-reckoned start).
+
+Without fixes the filter runs on the compass alone.  All noise parameters are kf_* entries of
+Params; everything is jnp with masks, so it is jit/vmap/grad-safe.
 """
 
 from __future__ import annotations
@@ -9,20 +55,202 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from .angles import safe_div, wrap
+from .params import deg
+
+N_STATES = 5
+I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
+H_COMPASS = jnp.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
+H_FIX = jnp.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
+
 
 class KalmanState(NamedTuple):
-    x: jnp.ndarray  # east, m
-    y: jnp.ndarray  # north, m
+    x: jnp.ndarray        # east, m (position computer, CRE)
+    y: jnp.ndarray        # north, m (position computer, CRN)
+    err: jnp.ndarray      # (5,) error-state estimate [dth1, dth2, eps, dN, dE] (rad, rad, rad/s, m, m)
+    cov: jnp.ndarray      # (5, 5) its covariance
+    speed: jnp.ndarray    # last plausible signed speed, m/s
+    active: jnp.ndarray   # 1.0 once the wheel heading has been started (filter running)
+    fixes: jnp.ndarray    # number of position fixes used
+
+
+def initial_covariance(params):
+    """P0 = diag(sigma_gm^2, sigma_heading0^2, sigma_ramp0^2, sigma_pos0^2, sigma_pos0^2)."""
+    return jnp.diag(jnp.stack([
+        deg(params.kf_gm_sigma_deg) ** 2,
+        deg(params.kf_heading_sigma0_deg) ** 2,
+        (deg(params.kf_ramp_sigma0_deg_per_min) / 60.0) ** 2,
+        params.kf_pos_sigma0_m ** 2,
+        params.kf_pos_sigma0_m ** 2,
+    ]))
 
 
 def init_kalman_state(params):
     z = jnp.zeros((), jnp.float64)
-    return KalmanState(z, z)
+    return KalmanState(x=z, y=z, err=jnp.zeros((N_STATES,), jnp.float64), cov=initial_covariance(params),
+                       speed=z, active=z, fixes=z)
 
 
-def kalman_step(params, ks, *, dt, d_t, alpha, wheel_heading, compass_heading, compass_ok, e_c,
-                fix_east, fix_north, fix_valid):
-    """Returns (new KalmanState, heading [rad], x [m], y [m])."""
-    x = ks.x + d_t * jnp.sin(wheel_heading)
-    y = ks.y + d_t * jnp.cos(wheel_heading)
-    return KalmanState(x, y), wheel_heading, x, y
+def transition(params, dt, s, course):
+    """Phi, Q of one sample: dt (s), s corrected signed distance (m), course the corrected course (rad)."""
+    tau = params.kf_gm_tau_s
+    e1 = jnp.exp(-dt / tau)
+    sig_gm2 = deg(params.kf_gm_sigma_deg) ** 2
+    q_ramp = params.kf_ramp_psd
+    q_drift = params.kf_drift_psd
+    sn, cs = jnp.sin(course), jnp.cos(course)
+    z = jnp.zeros_like(dt)
+    one = jnp.ones_like(dt)
+    phi = jnp.stack([
+        jnp.stack([e1, z, z, z, z]),
+        jnp.stack([z, one, dt, z, z]),
+        jnp.stack([z, z, one, z, z]),
+        jnp.stack([-s * sn, -s * sn, z, one, z]),
+        jnp.stack([s * cs, s * cs, z, z, one]),
+    ])
+    q11 = sig_gm2 * (1.0 - e1 * e1)
+    q22 = q_ramp * dt ** 3 / 3.0 + q_drift * dt
+    q23 = q_ramp * dt ** 2 / 2.0
+    q33 = q_ramp * dt
+    along = (params.kf_speed_sigma * s) ** 2          # distance-scale error, along track
+    cross = (deg(params.kf_white_sigma_deg) * s) ** 2  # white course noise dth3, across track
+    qp = params.kf_pos_psd * dt
+    qnn = along * cs * cs + cross * sn * sn + qp
+    qee = along * sn * sn + cross * cs * cs + qp
+    qne = (along - cross) * sn * cs
+    q = jnp.stack([
+        jnp.stack([q11, z, z, z, z]),
+        jnp.stack([z, q22, q23, z, z]),
+        jnp.stack([z, q23, q33, z, z]),
+        jnp.stack([z, z, z, qnn, qne]),
+        jnp.stack([z, z, z, qne, qee]),
+    ])
+    return phi, q
+
+
+def predict(err, cov, phi, q):
+    """x^- = Phi x with the position rows' course coupling removed (the corrected course already
+    applies the estimated course error, so the estimated position error does not grow from it);
+    P^- = Phi P Phi^T + Q, symmetrized."""
+    x = phi @ err
+    x = x.at[I_N].set(err[I_N]).at[I_E].set(err[I_E])
+    p = phi @ cov @ phi.T + q
+    return x, 0.5 * (p + p.T)
+
+
+def _inv(s):
+    """Inverse of a 1x1 or 2x2 SPD matrix (closed form)."""
+    if s.shape[-1] == 1:
+        return 1.0 / s
+    a, b, c, d = s[0, 0], s[0, 1], s[1, 0], s[1, 1]
+    det = a * d - b * c
+    return jnp.stack([jnp.stack([d, -b]), jnp.stack([-c, a])]) / det
+
+
+def update(err, cov, nu, h, r, mask, gate):
+    """Measurement update with innovation ``nu`` (m,), H (m, 5), R (m, m); Joseph form.
+
+    ``gate`` > 0: soft gate, R is scaled by max(1, d^2 / gate^2), d^2 = nu^T S^-1 nu (S without
+    the scaling); gate <= 0 (or inf) disables it.  ``mask`` (bool) False leaves (err, cov) as they are.
+    Returns (err, cov, d^2).
+    """
+    hp = h @ cov
+    s0 = hp @ h.T + r
+    d2 = nu @ _inv(s0) @ nu
+    scale = jnp.where(gate > 0.0, jnp.maximum(1.0, d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2), 1.0)
+    s = hp @ h.T + scale * r
+    k = hp.T @ _inv(s)
+    k = jnp.where(mask, k, 0.0)
+    x = err + k @ nu
+    a = jnp.eye(N_STATES) - k @ h
+    p = a @ cov @ a.T + scale * (k @ r @ k.T)
+    return x, 0.5 * (p + p.T), d2
+
+
+def compass_noise(params, e_c, distance):
+    """Compass course variance (rad^2) for a sample covering |distance| m (see the module doc)."""
+    r0 = deg(params.kf_compass_sigma_deg) ** 2 + deg(params.kf_white_sigma_deg) ** 2 + (
+        params.kf_compass_ec_weight * e_c) ** 2
+    d = jnp.abs(distance)
+    factor = jnp.maximum(1.0, safe_div(params.kf_compass_corr_m, d, eps=1e-9, fallback=1e9))
+    return r0 * jnp.minimum(factor, 1e9)
+
+
+def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
+                fix_east, fix_north, fix_valid, odometer_ok, initialized, enabled=True):
+    """One sample.  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
+
+    dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp;
+    alpha: wheel heading change of the sample (rad); wheel_heading: H_W after it;
+    compass_heading: H_C (valid where compass_ok); e_c: compass error bound (rad);
+    odometer_ok: the odometer's own plausibility of the counts; initialized: H_W has been
+    started (1.0).  ``enabled`` is static: False (other modes) passes the state through.
+    """
+    if not enabled:
+        return ks, wheel_heading, ks.x, ks.y
+    active = ks.active > 0.5
+    p0 = initial_covariance(params)
+    dpp = jnp.maximum(params.dpp_left, params.dpp_right)
+    track = jnp.minimum(params.T_F, params.T_R)
+
+    # 1. Plausibility of speed and course.
+    time_ok = dt > 0.0
+    v_meas = safe_div(distance, dt)
+    dv_max = params.kf_max_accel * dt + safe_div(2.0 * dpp, dt)
+    speed_ok = odometer_ok & (jnp.abs(v_meas - ks.speed) <= dv_max)
+    v_slew = ks.speed + jnp.clip(v_meas - ks.speed, -params.kf_max_accel * dt, params.kf_max_accel * dt)
+    speed = jnp.where(time_ok, jnp.where(speed_ok, v_meas, v_slew), ks.speed)
+    dist_used = jnp.where(time_ok & ~speed_ok, v_slew * dt, distance)
+    course_limit = deg(params.kf_max_yaw_rate_deg_s) * dt + 4.0 * dpp / track
+    course_ok = jnp.abs(alpha) <= course_limit
+
+    # 2. DF(V).
+    s = params.kf_speed_factor * dist_used
+
+    # Predict (the filter runs only once H_W has been started).
+    err = jnp.where(active, ks.err, 0.0)
+    cov = jnp.where(active, ks.cov, p0)
+    err = err.at[I_DRIFT].add(jnp.where(active & ~course_ok, alpha, 0.0))
+    course_est = err[I_GM] + err[I_DRIFT]
+    course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
+    phi, q = transition(params, dt, s, course_mid)
+    err_p, cov_p = predict(err, cov, phi, q)
+    err_p = jnp.where(active, err_p, err)
+    cov_p = jnp.where(active, cov_p, cov)
+
+    # 3. Position computer with the corrected course.
+    course_mid = wrap(wheel_heading - 0.5 * alpha - (err_p[I_GM] + err_p[I_DRIFT]))
+    north = ks.y + s * jnp.cos(course_mid)
+    east = ks.x + s * jnp.sin(course_mid)
+
+    # 4a. Compass course update.
+    z_c = wrap(wheel_heading - compass_heading)
+    nu_c = wrap(z_c - (err_p[I_GM] + err_p[I_DRIFT]))
+    r_c = compass_noise(params, e_c, s)
+    use_c = active & compass_ok & (jnp.abs(s) > 0.0)
+    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], H_COMPASS, r_c[None, None], use_c, params.kf_gate_sigma)
+
+    # 4b. Position fix update (the first fix without the gate).
+    fix_ok = active & (fix_valid > 0.5) & jnp.isfinite(fix_east) & jnp.isfinite(fix_north)
+    fe = jnp.where(fix_ok, fix_east, 0.0)
+    fn = jnp.where(fix_ok, fix_north, 0.0)
+    nu_f = jnp.stack([north - fn - err_u[I_N], east - fe - err_u[I_E]])
+    r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
+    gate_f = jnp.where(ks.fixes > 0.5, params.kf_gate_sigma, 0.0)
+    err_u, cov_u, _ = update(err_u, cov_u, nu_f, H_FIX, r_f, fix_ok, gate_f)
+
+    # Feed the position corrections C(RN), C(RE) back and reset their error states.
+    north = north - err_u[I_N]
+    east = east - err_u[I_E]
+    err_u = err_u.at[I_N].set(0.0).at[I_E].set(0.0)
+
+    heading = jnp.where(active, wrap(wheel_heading - (err_u[I_GM] + err_u[I_DRIFT])), wheel_heading)
+    new = KalmanState(
+        x=east, y=north,
+        err=jnp.where(active, err_u, jnp.zeros_like(err_u)),
+        cov=jnp.where(active, cov_u, p0),
+        speed=speed,
+        active=jnp.where(initialized > 0.5, 1.0, 0.0),
+        fixes=ks.fixes + jnp.where(fix_ok, 1.0, 0.0),
+    )
+    return new, heading, east, north

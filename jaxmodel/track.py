@@ -38,7 +38,11 @@ def clip_curvature(c, B, T_F, clip_fraction):
 def effective_track(c, P, B, T_F, clip_fraction=0.98):
     """T_E(c; P, B, T_F), US 4,788,645 eq. (14), closed form. c = dD/AD (any sign), result in m."""
     c = clip_curvature(c, B, T_F, clip_fraction)
-    c2 = c * c
+    return _effective_track_of_c2(c * c, P, B, T_F)
+
+
+def _effective_track_of_c2(c2, P, B, T_F):
+    """Eq. (14) as a function of c^2 (no square root of c: smooth at c = 0 for the table)."""
     q = c2 / (1.0 - 0.25 * c2) * (2.0 * B / T_F) ** 2
     inner = safe_sqrt(1.0 - q)
     return T_F * (P + (1.0 - P) * jnp.sqrt(0.5 + 0.5 * inner))
@@ -48,7 +52,7 @@ def effective_track_table(P, B, T_F, clip_fraction=0.98, size=TABLE_SIZE):
     """Table of claims 15-16: (c2_max, T_E at c^2 = linspace(0, c2_max, size)). Differentiable in P, B, T_F."""
     c_lim = clip_fraction * max_curvature(B, T_F)
     c2_nodes = jnp.linspace(0.0, 1.0, size) * c_lim**2
-    values = effective_track(jnp.sqrt(c2_nodes), P, B, T_F, clip_fraction=1.0)
+    values = _effective_track_of_c2(c2_nodes, P, B, T_F)
     return c2_nodes[-1], values
 
 

@@ -1,0 +1,57 @@
+"""Small deterministic drives built from the seed model itself (independent of the simulator).
+
+A drive is a list of segments (distance m, path curvature 1/m (right turn > 0), speed m/s).
+Wheel distances invert US 4,788,645 eq. (8) with eq. (14): dD = dpsi T_E(c) (1 + a V^2), where
+c = dD/AD is found by fixed-point iteration; left = AD + dD/2, right = AD - dD/2.
+"""
+
+import math
+
+import numpy as np
+
+from oracle import effective_track
+
+
+def seed_model_drive(segments, params, dt=0.1, heading0=0.0, field=20.0, compass_noise_deg=0.0, seed=0):
+    p = params
+    rng = np.random.default_rng(seed)
+    t, head, dl, dr = [0.0], [heading0], [0.0], [0.0]
+    psi = heading0
+    for length, kappa, speed in segments:
+        n = max(1, int(round(length / (speed * dt))))
+        ad = length / n
+        for _ in range(n):
+            dpsi = kappa * ad
+            if p["sensor_axle"] == "front":
+                c = 0.0
+                for _ in range(30):
+                    dD = dpsi * effective_track(c, p["P"], p["B"], p["T_F"], p["curvature_clip"]) * (1 + p["a"] * speed**2)
+                    c = dD / ad
+            else:
+                dD = dpsi * p["T_R"] * (1 + p["a"] * speed**2)
+            psi += dpsi
+            t.append(t[-1] + dt)
+            head.append(psi)
+            dl.append(dl[-1] + ad + dD / 2)
+            dr.append(dr[-1] + ad - dD / 2)
+    t, head = np.array(t), np.array(head)
+    left = np.floor(np.array(dl) / p["dpp_left"])
+    right = np.floor(np.array(dr) / p["dpp_right"])
+    noise = np.deg2rad(compass_noise_deg) * rng.standard_normal(len(t))
+    magnetic = head + noise - math.radians(p["variation_deg"])
+    cx = field * np.cos(magnetic) + p["X0"]
+    cy = field * np.sin(magnetic) + p["Y0"]
+    wrapped = (head + np.pi) % (2 * np.pi) - np.pi
+    return dict(time_s=t, left_pulses=left % p["counter_modulus"], right_pulses=right % p["counter_modulus"],
+                compass_x=cx, compass_y=cy, true_heading=wrapped)
+
+
+def city_blocks(n_blocks=6, block=120.0, speed=10.0, radius=15.0, sign=1.0):
+    """Straights joined by 90-degree turns, alternating right and left."""
+    segs = []
+    for i in range(n_blocks):
+        segs.append((block, 0.0, speed))
+        s = sign if i % 2 == 0 else -sign
+        segs.append((math.pi / 2 * radius, s / radius, speed * 0.7))
+    segs.append((block, 0.0, speed))
+    return segs

@@ -1,0 +1,90 @@
+"""Properties: no input (NaN, inf, zero field, counter jumps, zero or negative time steps) makes a
+NaN heading or a crash; wrapping properties of the angle helpers."""
+
+import math
+
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings
+
+import jaxmodel as jm
+from jaxmodel.angles import wrap
+
+N = 48
+SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e300, -1e300, 1e-300])
+_run_all = {m: jax.jit(lambda p, i, m=m: jm.run(p, i, jm.Config(mode=m))) for m in jm.MODES}
+
+
+def _floats(special_rate):
+    normal = st.floats(-100.0, 100.0, allow_nan=False)
+    return st.one_of(normal, SPECIAL) if special_rate else normal
+
+
+@st.composite
+def hostile_drives(draw):
+    dt = draw(hnp.arrays(np.float64, N, elements=st.one_of(st.floats(-1.0, 2.0), SPECIAL)))
+    t = np.cumsum(np.nan_to_num(dt, nan=0.1, posinf=0.1, neginf=-0.1))
+    t[draw(hnp.arrays(np.bool_, N))] = np.nan if draw(st.booleans()) else 0.0
+    steps_l = draw(hnp.arrays(np.float64, N, elements=st.one_of(st.integers(-50, 500).map(float), SPECIAL)))
+    steps_r = draw(hnp.arrays(np.float64, N, elements=st.one_of(st.integers(-50, 500).map(float), SPECIAL)))
+    left = np.cumsum(np.nan_to_num(steps_l, nan=0.0, posinf=1e9, neginf=-1e9))
+    right = np.cumsum(np.nan_to_num(steps_r, nan=0.0, posinf=1e9, neginf=-1e9))
+    left[np.isnan(steps_l)] = np.nan
+    right[np.isinf(steps_r)] = np.inf
+    cx = draw(hnp.arrays(np.float64, N, elements=_floats(True)))
+    cy = draw(hnp.arrays(np.float64, N, elements=_floats(True)))
+    mh = draw(hnp.arrays(np.float64, N, elements=_floats(True)))
+    flags = draw(hnp.arrays(np.float64, N, elements=st.sampled_from([0.0, 1.0, math.nan])))
+    return jm.make_inputs(t, left, right, cx, cy, map_heading=mh, map_valid=flags, compass_unreliable_area=flags,
+                          fix_east_m=cx * 10, fix_north_m=cy * 10, fix_valid=flags)
+
+
+@settings(max_examples=60, deadline=None)
+@given(hostile_drives(), st.sampled_from(jm.MODES))
+def test_no_input_makes_a_nan_heading(inputs, mode):
+    out = _run_all[mode](jm.make_params(), inputs)
+    for name in ("heading", "wheel_heading", "compass_heading", "x", "y", "speed", "a", "heading_reliability",
+                 "dpp_ratio", "effective_track", "curvature"):
+        value = np.asarray(getattr(out, name))
+        assert np.all(np.isfinite(value)), (name, value)
+    h = np.asarray(out.heading)
+    assert np.all((h > -math.pi) & (h <= math.pi))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-1e6, 1e6, allow_nan=False))
+def test_wrap_lands_in_half_open_interval_and_preserves_the_angle(angle):
+    w = float(wrap(jnp.float64(angle)))
+    assert -math.pi < w <= math.pi
+    assert math.isclose(math.cos(w), math.cos(angle), abs_tol=1e-9)
+    assert math.isclose(math.sin(w), math.sin(angle), abs_tol=1e-9)
+
+
+def test_wrap_of_pi_is_pi_and_gradient_is_one():
+    assert float(wrap(jnp.float64(math.pi))) == math.pi
+    assert float(wrap(jnp.float64(-math.pi))) == math.pi
+    assert float(jax.grad(wrap)(3.0)) == 1.0
+    assert float(jax.grad(wrap)(7.0)) == 1.0
+
+
+def test_gradient_through_hostile_samples_stays_finite():
+    t = np.arange(N) * 0.1
+    left = np.cumsum(np.full(N, 40.0))
+    right = np.cumsum(np.full(N, 38.0))
+    cx = np.full(N, 20.0)
+    cy = np.zeros(N)
+    cx[5] = np.nan
+    cx[9] = 0.0
+    cy[9] = 0.0
+    left[20] = np.nan
+    t[30] = t[29]
+    inputs = jm.make_inputs(t, left, right, cx, cy)
+
+    def loss(a, P):
+        return jnp.sum(jm.run(jm.make_params()._replace(a=a, P=P), inputs).heading ** 2)
+
+    g = jax.grad(loss, argnums=(0, 1))(jnp.float64(1e-4), jnp.float64(0.125))
+    assert all(np.isfinite(float(x)) for x in g)
