@@ -27,7 +27,7 @@ bundle it; it reads jaxpr objects only through their public attributes.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -313,47 +313,95 @@ def _const_array(value, kind: str) -> np.ndarray:
     return arr
 
 
-# Elementwise templates: (python template, kinds it accepts).  {0}, {1}, ... are operand literals.
+class Tpl(NamedTuple):
+    """An operation in both dialects: Python source and C source, operands as {0}, {1}, ..."""
+
+    py: str
+    c: str
+
+
+def T(py: str, c: str | None = None) -> Tpl:
+    return Tpl(py, py if c is None else c)
+
+
+IDENTITY = T("{0}")
+
+# Elementwise templates by input kind.  Python: the helpers above reproduce IEEE float64 where
+# Python would raise; C: <math.h> is IEEE already (compiled without fast-math and FMA contraction).
 _FLOAT_UNARY = {
-    "neg": "(-{0})", "abs": "abs({0})", "sign": "_sign({0})",
+    "neg": T("(-{0})"), "abs": T("abs({0})", "fabs({0})"), "sign": T("_sign({0})", "odc_sign({0})"),
     # |x| >= 2**52 is already integral; NaN and +-inf fail the comparison and pass through
-    "floor": "(float(_mfloor({0})) if -4.5e15 < {0} < 4.5e15 else {0})",
-    "ceil": "(float(_mceil({0})) if -4.5e15 < {0} < 4.5e15 else {0})",
-    "is_finite": "({0} - {0} == 0.0)", "exp": "_exp({0})", "exp2": "_exp2({0})", "expm1": "_expm1({0})",
-    "log": "_log({0})", "log1p": "_log1p({0})", "sin": "_sin({0})", "cos": "_cos({0})", "tan": "_tan({0})",
-    "asin": "_asin({0})", "acos": "_acos({0})", "atan": "math.atan({0})", "sinh": "_sinh({0})",
-    "cosh": "_cosh({0})", "tanh": "math.tanh({0})", "logistic": "_logistic({0})",
-    "sqrt": "(_msqrt({0}) if {0} >= 0.0 else _nan)", "square": "({0} * {0})",
-    "rsqrt": "(_div(1.0, _msqrt({0})) if {0} >= 0.0 else _nan)", "erf": "math.erf({0})",
-    "lgamma": "math.lgamma({0})", "copy": "{0}", "copy_p": "{0}", "optimization_barrier": "{0}",
-    "real": "{0}",
+    "floor": T("(float(_mfloor({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "floor({0})"),
+    "ceil": T("(float(_mceil({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "ceil({0})"),
+    "is_finite": T("({0} - {0} == 0.0)", "(isfinite({0}) != 0)"), "exp": T("_exp({0})", "exp({0})"),
+    "exp2": T("_exp2({0})", "exp2({0})"), "expm1": T("_expm1({0})", "expm1({0})"),
+    "log": T("_log({0})", "log({0})"), "log1p": T("_log1p({0})", "log1p({0})"),
+    "sin": T("_sin({0})", "sin({0})"), "cos": T("_cos({0})", "cos({0})"), "tan": T("_tan({0})", "tan({0})"),
+    "asin": T("_asin({0})", "asin({0})"), "acos": T("_acos({0})", "acos({0})"), "atan": T("math.atan({0})", "atan({0})"),
+    "sinh": T("_sinh({0})", "sinh({0})"), "cosh": T("_cosh({0})", "cosh({0})"), "tanh": T("math.tanh({0})", "tanh({0})"),
+    "logistic": T("_logistic({0})", "odc_logistic({0})"),
+    "sqrt": T("(_msqrt({0}) if {0} >= 0.0 else _nan)", "sqrt({0})"), "square": T("({0} * {0})"),
+    "rsqrt": T("(_div(1.0, _msqrt({0})) if {0} >= 0.0 else _nan)", "(1.0 / sqrt({0}))"),
+    "erf": T("math.erf({0})", "erf({0})"), "lgamma": T("math.lgamma({0})", "lgamma({0})"),
+    "copy": IDENTITY, "copy_p": IDENTITY, "optimization_barrier": IDENTITY, "real": IDENTITY,
 }
-_FLOAT_DIV = "({0} / {1} if {1} else _div({0}, {1}))"
+_FLOAT_DIV = T("({0} / {1} if {1} else _div({0}, {1}))", "({0} / {1})")
+_FLOAT_DIV_NONZERO = T("({0} / {1})")
+_FLOAT_MAX = T("({0} if ({0} >= {1} or {0} != {0}) else {1})", "((({0} >= {1}) || ({0} != {0})) ? {0} : {1})")
+_FLOAT_MIN = T("({0} if ({0} <= {1} or {0} != {0}) else {1})", "((({0} <= {1}) || ({0} != {0})) ? {0} : {1})")
 _FLOAT_BINARY = {
-    "add": "({0} + {1})", "sub": "({0} - {1})", "mul": "({0} * {1})",
-    "div": _FLOAT_DIV, "rem": "_rem({0}, {1})", "pow": "_pow({0}, {1})",
-    "max": "({0} if ({0} >= {1} or {0} != {0}) else {1})", "min": "({0} if ({0} <= {1} or {0} != {0}) else {1})",
-    "atan2": "math.atan2({0}, {1})", "nextafter": "math.nextafter({0}, {1})",
+    "add": T("({0} + {1})"), "sub": T("({0} - {1})"), "mul": T("({0} * {1})"),
+    "div": _FLOAT_DIV, "rem": T("_rem({0}, {1})", "fmod({0}, {1})"), "pow": T("_pow({0}, {1})", "pow({0}, {1})"),
+    "max": _FLOAT_MAX, "min": _FLOAT_MIN,
+    "atan2": T("math.atan2({0}, {1})", "atan2({0}, {1})"), "nextafter": T("math.nextafter({0}, {1})", "nextafter({0}, {1})"),
 }
-_INT_UNARY = {"neg": "(-{0})", "abs": "abs({0})", "sign": "_isign({0})", "not": "(~{0})", "copy": "{0}",
-              "copy_p": "{0}", "optimization_barrier": "{0}"}
+_INT_MAX = T("({0} if {0} >= {1} else {1})", "(({0} >= {1}) ? {0} : {1})")
+_INT_MIN = T("({0} if {0} <= {1} else {1})", "(({0} <= {1}) ? {0} : {1})")
+_INT_UNARY = {"neg": T("(-{0})"), "abs": T("abs({0})", "llabs({0})"), "sign": T("_isign({0})", "odc_isign({0})"),
+              "not": T("(~{0})"), "copy": IDENTITY, "copy_p": IDENTITY, "optimization_barrier": IDENTITY}
 _INT_BINARY = {
-    "add": "({0} + {1})", "sub": "({0} - {1})", "mul": "({0} * {1})", "div": "_idiv({0}, {1})",
-    "rem": "_irem({0}, {1})", "max": "({0} if {0} >= {1} else {1})", "min": "({0} if {0} <= {1} else {1})",
-    "and": "({0} & {1})", "or": "({0} | {1})", "xor": "({0} ^ {1})",
+    "add": T("({0} + {1})"), "sub": T("({0} - {1})"), "mul": T("({0} * {1})"),
+    "div": T("_idiv({0}, {1})", "odc_idiv({0}, {1})"), "rem": T("_irem({0}, {1})", "odc_irem({0}, {1})"),
+    "max": _INT_MAX, "min": _INT_MIN, "and": T("({0} & {1})"), "or": T("({0} | {1})"), "xor": T("({0} ^ {1})"),
 }
-_BOOL_UNARY = {"not": "(not {0})", "copy": "{0}", "copy_p": "{0}", "optimization_barrier": "{0}"}
-_BOOL_BINARY = {"and": "({0} and {1})", "or": "({0} or {1})", "xor": "({0} != {1})",
-                "eq": "({0} == {1})", "ne": "({0} != {1})"}
-_COMPARE = {"eq": "({0} == {1})", "ne": "({0} != {1})", "lt": "({0} < {1})", "le": "({0} <= {1})",
-            "gt": "({0} > {1})", "ge": "({0} >= {1})"}
+_BOOL_AND = T("({0} and {1})", "({0} && {1})")
+_BOOL_OR = T("({0} or {1})", "({0} || {1})")
+_BOOL_UNARY = {"not": T("(not {0})", "(!{0})"), "copy": IDENTITY, "copy_p": IDENTITY, "optimization_barrier": IDENTITY}
+_BOOL_BINARY = {"and": _BOOL_AND, "or": _BOOL_OR, "xor": T("({0} != {1})"),
+                "eq": T("({0} == {1})"), "ne": T("({0} != {1})")}
+_COMPARE = {"eq": T("({0} == {1})"), "ne": T("({0} != {1})"), "lt": T("({0} < {1})"), "le": T("({0} <= {1})"),
+            "gt": T("({0} > {1})"), "ge": T("({0} >= {1})")}
+_SELECT2 = T("({2} if {0} else {1})", "({0} ? {2} : {1})")
+_CONVERT = {
+    ("float", "float"): IDENTITY, ("int", "int"): IDENTITY, ("bool", "bool"): IDENTITY,
+    ("float", "int"): T("_f2i({0})", "odc_f2i({0})"), ("float", "bool"): T("({0} != 0.0)"),
+    ("int", "float"): T("float({0})", "((double)({0}))"), ("int", "bool"): T("({0} != 0)"),
+    ("bool", "float"): T("(1.0 if {0} else 0.0)", "(({0}) ? 1.0 : 0.0)"),
+    ("bool", "int"): T("(1 if {0} else 0)", "(({0}) ? 1LL : 0LL)"),
+}
+_ROUND_EVEN = T("(float(round({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "nearbyint({0})")
+_ROUND_AWAY = T("_round_away({0})", "round({0})")
+_INDEX = T("{0}[{1}]")
+
+
+def _select_n(n: int) -> Tpl:
+    py = "(" + ", ".join("{%d}" % (i + 1) for i in range(n)) + ")[{0}]"
+    c = "{%d}" % n
+    for i in range(n - 2, -1, -1):
+        c = "(({0}) == %d ? {%d} : %s)" % (i, i + 1, c)
+    return T(py, c)
+
+
+def _clampi(hi: int) -> Tpl:
+    return T("_clampi({0}, 0, %d)" % hi, "odc_clampi({0}, 0, %d)" % hi)
+
 
 _CALL_PRIMS = ("jit", "pjit", "closed_call", "core_call", "remat", "checkpoint", "custom_jvp_call",
                "custom_vjp_call", "custom_vjp_call_jaxpr", "custom_lin")
 
 
 class Lowered:
-    """The generated function: ``fn(*runtime_args) -> tuple of flat lists`` (one per jaxpr output).
+    """The generated Python function: ``fn(*runtime_args) -> tuple of flat lists`` (one per jaxpr output).
 
     Each runtime argument is a flat sequence of the corresponding jaxpr input's elements
     (row-major).  ``source`` is the generated Python source; ``n_ops`` its number of statements.
@@ -369,33 +417,55 @@ class Lowered:
         return self.fn(*args)
 
 
+class _Line(NamedTuple):
+    target: str
+    tpl: Tpl | None      # None: a table (tuple / C array) of ``operands``
+    operands: tuple
+    kind: str
+    used: tuple
+
+
 class _Emitter:
     def __init__(self, max_unroll: int):
-        self.lines: list[tuple[str, str, tuple[str, ...]]] = []  # (target, expr, used names)
+        self.lines: list[_Line] = []
         self.cse: dict[str, Ref] = {}
+        self.kinds: dict[str, str] = {}
         self.counter = 0
         self.max_unroll = max_unroll
 
     # -- atoms ------------------------------------------------------------------------------
-    def emit(self, template: str, operands: Sequence[Any], kind: str):
-        """Value of ``template`` on the operands: folded if all are constants, else a new local."""
-        if template == "{0}":
+    def emit(self, tpl: Tpl, operands: Sequence[Any], kind: str):
+        """Value of ``tpl`` on the operands: folded if all are constants, else a (shared) new local."""
+        if tpl is IDENTITY or tpl.py == "{0}":
             return operands[0]
-        texts = [_lit(a) for a in operands]
-        expr = template.format(*texts)
+        expr = tpl.py.format(*[_lit(a) for a in operands])
         if not any(isinstance(a, Ref) for a in operands):
             return _py(eval(expr, RUNTIME), kind)  # noqa: S307 - our own template on literals
         if expr in self.cse:
             return self.cse[expr]
         self.counter += 1
         ref = Ref(f"v{self.counter}")
-        used = tuple(a.name for a in operands if isinstance(a, Ref))
-        self.lines.append((ref.name, expr, used))
+        self.lines.append(_Line(ref.name, tpl, tuple(operands), kind,
+                                tuple(a.name for a in operands if isinstance(a, Ref))))
         self.cse[expr] = ref
+        self.kinds[ref.name] = kind
+        return ref
+
+    def table(self, atoms, kind):
+        """A local tuple (C: array) holding ``atoms``, for indexing with a data-dependent index."""
+        key = "(" + ", ".join(_lit(a) for a in atoms) + ",)"
+        if key in self.cse:
+            return self.cse[key]
+        self.counter += 1
+        ref = Ref(f"t{self.counter}")
+        self.lines.append(_Line(ref.name, None, tuple(atoms), kind,
+                                tuple(a.name for a in atoms if isinstance(a, Ref))))
+        self.cse[key] = ref
+        self.kinds[ref.name] = kind
         return ref
 
     # -- elementwise --------------------------------------------------------------------------
-    def elementwise(self, template: str, arrays: Sequence[np.ndarray], kind: str, simplify=None) -> np.ndarray:
+    def elementwise(self, tpl: Tpl, arrays: Sequence[np.ndarray], kind: str, simplify=None) -> np.ndarray:
         shape = np.broadcast_shapes(*[a.shape for a in arrays])
         bs = [np.broadcast_to(a, shape).reshape(-1) for a in arrays]
         out = _objarray(shape)
@@ -403,9 +473,9 @@ class _Emitter:
         for i in range(flat.size):
             ops = [b[i] for b in bs]
             r = simplify(ops) if simplify is not None else None
-            if r is None and template is _FLOAT_DIV and not isinstance(ops[1], Ref) and ops[1] != 0.0:
-                r = self.emit("({0} / {1})", ops, kind)  # a non-zero constant divisor cannot raise
-            flat[i] = r if r is not None else self.emit(template, ops, kind)
+            if r is None and tpl is _FLOAT_DIV and not isinstance(ops[1], Ref) and ops[1] != 0.0:
+                r = self.emit(_FLOAT_DIV_NONZERO, ops, kind)  # a non-zero constant divisor cannot raise
+            flat[i] = r if r is not None else self.emit(tpl, ops, kind)
         return out
 
     # -- jaxpr --------------------------------------------------------------------------------
@@ -471,43 +541,33 @@ class _Emitter:
                     if a is b or (not isinstance(a, Ref) and not isinstance(b, Ref) and _lit(a) == _lit(b)):
                         return a
                     return None
-                return [self.elementwise("({2} if {0} else {1})", [pred, *cases], kind, simp)]
-            tmpl = "(" + ", ".join("{%d}" % (i + 1) for i in range(len(cases))) + ")[{0}]"
+                return [self.elementwise(_SELECT2, [pred, *cases], kind, simp)]
 
             def simp_n(ops):
                 if not isinstance(ops[0], Ref):
                     return ops[1 + int(ops[0])]
                 return None
-            return [self.elementwise(tmpl, [pred, *cases], kind, simp_n)]
+            return [self.elementwise(_select_n(len(cases)), [pred, *cases], kind, simp_n)]
         if name == "convert_element_type":
             src = _kind(in_avals[0].dtype)
             dst = _kind(p["new_dtype"])
-            tmpl = {
-                ("float", "float"): "{0}", ("int", "int"): "{0}", ("bool", "bool"): "{0}",
-                ("float", "int"): "_f2i({0})", ("float", "bool"): "({0} != 0.0)",
-                ("int", "float"): "float({0})", ("int", "bool"): "({0} != 0)",
-                ("bool", "float"): "(1.0 if {0} else 0.0)", ("bool", "int"): "(1 if {0} else 0)",
-            }[(src, dst)]
-            return [self.elementwise(tmpl, ins, dst)]
+            return [self.elementwise(_CONVERT[(src, dst)], ins, dst)]
         if name == "integer_pow":
             return [self.elementwise(_integer_pow_template(int(p["y"]), kind), ins, kind)]
         if name == "round":
             method = int(getattr(p["rounding_method"], "value", p["rounding_method"]))
-            tmpl = "(float(round({0})) if -4.5e15 < {0} < 4.5e15 else {0})" if method == 1 else "_round_away({0})"
-            return [self.elementwise(tmpl, ins, kind)]
+            return [self.elementwise(_ROUND_EVEN if method == 1 else _ROUND_AWAY, ins, kind)]
         if name == "clamp":
             lo, x, hi = ins
-            if kind == "float":
-                inner = "({1} if ({1} >= {0} or {1} != {1}) else {0})"
-                return [self.elementwise("_fmin(" + inner + ", {2})", [lo, x, hi], kind)]
-            return [self.elementwise("min(max({1}, {0}), {2})", [lo, x, hi], kind)]
+            mx, mn = (_FLOAT_MAX, _FLOAT_MIN) if kind == "float" else (_INT_MAX, _INT_MIN)
+            return [self.elementwise(mn, [self.elementwise(mx, [x, lo], kind), hi], kind)]
         in_kind = _kind(in_avals[0].dtype) if in_avals else kind
-        if len(ins) == 1 and name in {"float": _FLOAT_UNARY, "int": _INT_UNARY, "bool": _BOOL_UNARY}[in_kind]:
-            table = {"float": _FLOAT_UNARY, "int": _INT_UNARY, "bool": _BOOL_UNARY}[in_kind]
-            return [self.elementwise(table[name], ins, kind)]
-        if len(ins) == 2 and name in {"float": _FLOAT_BINARY, "int": _INT_BINARY, "bool": _BOOL_BINARY}[in_kind]:
-            table = {"float": _FLOAT_BINARY, "int": _INT_BINARY, "bool": _BOOL_BINARY}[in_kind]
-            return [self.elementwise(table[name], ins, kind, _simplifier(name, kind))]
+        unary = {"float": _FLOAT_UNARY, "int": _INT_UNARY, "bool": _BOOL_UNARY}[in_kind]
+        binary = {"float": _FLOAT_BINARY, "int": _INT_BINARY, "bool": _BOOL_BINARY}[in_kind]
+        if len(ins) == 1 and name in unary:
+            return [self.elementwise(unary[name], ins, kind)]
+        if len(ins) == 2 and name in binary:
+            return [self.elementwise(binary[name], ins, kind, _simplifier(name, kind))]
 
         # -- structure (no code) ---------------------------------------------------------------
         if name == "reshape":
@@ -541,6 +601,8 @@ class _Emitter:
             return [np.array(np.transpose(ins[0], p["permutation"]), dtype=object)]
         if name == "rev":
             return [np.array(np.flip(ins[0], axis=tuple(p["dimensions"])), dtype=object)]
+        if name == "pad":
+            return [self.pad(ins[0], ins[1].reshape(-1)[0], p["padding_config"])]
         if name == "iota":
             shape = tuple(p["shape"])
             dim = p["dimension"]
@@ -550,6 +612,13 @@ class _Emitter:
             return [self.reduce(name, ins[0], tuple(p["axes"]), kind)]
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], p["dimension_numbers"], kind)]
+        if name in ("scatter", "scatter-add", "scatter_add", "scatter-mul", "scatter_mul", "scatter-min",
+                    "scatter_min", "scatter-max", "scatter_max"):
+            if p.get("update_consts"):
+                raise Unsupported(f"{name} with update_consts")
+            return [self.scatter(name.replace("_", "-"), ins[0], ins[1], ins[2], p["dimension_numbers"], p["mode"], kind)]
+        if name == "gather":
+            return [self.gather(ins[0], ins[1], p, tuple(out_avals[0].shape), kind)]
         if name == "dynamic_slice":
             return [self.dynamic_slice(ins[0], ins[1:], tuple(p["slice_sizes"]))]
         if name == "dynamic_update_slice":
@@ -563,22 +632,109 @@ class _Emitter:
         raise Unsupported(f"primitive {name!r}")
 
     # -- helpers for structured primitives ------------------------------------------------------
-    def _chain(self, atoms, op_tmpl, kind):
+    def _chain(self, atoms, tpl, kind):
         acc = atoms[0]
         for a in atoms[1:]:
-            acc = self.emit(op_tmpl, [acc, a], kind)
+            acc = self.emit(tpl, [acc, a], kind)
         return acc
+
+    @staticmethod
+    def _const_indices(indices, what):
+        flat = indices.reshape(-1)
+        if any(isinstance(a, Ref) for a in flat):
+            raise Unsupported(f"{what} with data-dependent indices")
+        return np.array([int(a) for a in flat], dtype=np.int64).reshape(indices.shape)
+
+    def scatter(self, name, operand, indices, updates, dnums, mode, kind):
+        """XLA scatter with indices known at lowering time (index vector along the last axis of indices)."""
+        if tuple(getattr(dnums, "operand_batching_dims", ()) or ()):
+            raise Unsupported(f"{name} with batching dims")
+        idx = self._const_indices(indices, name)
+        uwd = tuple(dnums.update_window_dims)
+        iwd = tuple(dnums.inserted_window_dims)
+        sd2od = tuple(dnums.scatter_dims_to_operand_dims)
+        scatter_dims = [d for d in range(updates.ndim) if d not in uwd]
+        window_operand_dims = [d for d in range(operand.ndim) if d not in iwd]
+        window_size = [1] * operand.ndim
+        for ud, od in zip(uwd, window_operand_dims):
+            window_size[od] = updates.shape[ud]
+        clip = "CLIP" in str(mode)
+        combine = {"scatter": None, "scatter-add": T("({0} + {1})"), "scatter-mul": T("({0} * {1})"),
+                   "scatter-min": _FLOAT_MIN if kind == "float" else _INT_MIN,
+                   "scatter-max": _FLOAT_MAX if kind == "float" else _INT_MAX}[name]
+        out = np.array(operand, dtype=object)
+        if idx.ndim == 0:
+            idx = idx.reshape(1)
+        for u in np.ndindex(*updates.shape):
+            vec = idx[tuple(u[d] for d in scatter_dims)] if idx.ndim > 1 else idx
+            start = [0] * operand.ndim
+            for k, d in enumerate(sd2od):
+                start[d] = int(vec[k])
+            if clip:
+                start = [min(max(s_, 0), n - w) for s_, n, w in zip(start, operand.shape, window_size)]
+            elif any(s_ < 0 or s_ + w > n for s_, n, w in zip(start, operand.shape, window_size)):
+                continue  # FILL_OR_DROP: out-of-bounds windows are dropped
+            full = list(start)
+            for ud, od in zip(uwd, window_operand_dims):
+                full[od] += u[ud]
+            full = tuple(full)
+            out[full] = updates[u] if combine is None else self.emit(combine, [out[full], updates[u]], kind)
+        return out
+
+    def gather(self, operand, indices, p, out_shape, kind):
+        """XLA gather with indices known at lowering time."""
+        dn = p["dimension_numbers"]
+        if tuple(getattr(dn, "operand_batching_dims", ()) or ()):
+            raise Unsupported("gather with batching dims")
+        idx = self._const_indices(indices, "gather")
+        offset_dims = tuple(dn.offset_dims)
+        collapsed = tuple(dn.collapsed_slice_dims)
+        start_map = tuple(dn.start_index_map)
+        slice_sizes = tuple(p["slice_sizes"])
+        mode = str(p.get("mode"))
+        fill = p.get("fill_value")
+        batch_dims = [d for d in range(len(out_shape)) if d not in offset_dims]
+        window_operand_dims = [d for d in range(operand.ndim) if d not in collapsed]
+        out = _objarray(out_shape)
+        for o in np.ndindex(*out_shape):
+            vec = idx[tuple(o[d] for d in batch_dims)] if idx.ndim > 1 else idx
+            start = [0] * operand.ndim
+            for k, d in enumerate(start_map):
+                start[d] = int(vec[k])
+            oob = any(s_ < 0 or s_ + w > n for s_, n, w in zip(start, operand.shape, slice_sizes))
+            if oob and "FILL" in mode:
+                out[o] = _py(_nan if fill is None and kind == "float" else (fill if fill is not None else 0), kind)
+                continue
+            start = [min(max(s_, 0), n - w) for s_, n, w in zip(start, operand.shape, slice_sizes)]
+            full = list(start)
+            for od_out, od in zip(offset_dims, window_operand_dims):
+                full[od] += o[od_out]
+            out[o] = operand[tuple(full)]
+        return out
+
+    @staticmethod
+    def pad(operand, value, config):
+        out_shape = tuple(lo + hi + n + max(n - 1, 0) * interior for (lo, hi, interior), n in zip(config, operand.shape))
+        if any(s < 0 for s in out_shape):
+            raise Unsupported("pad to a negative size")
+        out = _objarray(out_shape)
+        out.reshape(-1)[:] = [value] * out.size
+        for idx in np.ndindex(*operand.shape):
+            pos = tuple(lo + i * (interior + 1) for i, (lo, _, interior) in zip(idx, config))
+            if all(0 <= q < s for q, s in zip(pos, out_shape)):
+                out[pos] = operand[idx]
+        return out
 
     def reduce(self, name, arr, axes, kind):
         keep = [d for d in range(arr.ndim) if d not in axes]
         moved = np.transpose(arr, keep + list(axes))
         out_shape = tuple(arr.shape[d] for d in keep)
         groups = moved.reshape(out_shape + (-1,))
-        tmpl = {
-            "reduce_sum": ("({0} + {1})", 0), "reduce_prod": ("({0} * {1})", 1),
-            "reduce_max": (_FLOAT_BINARY["max"] if kind == "float" else _INT_BINARY["max"], None),
-            "reduce_min": (_FLOAT_BINARY["min"] if kind == "float" else _INT_BINARY["min"], None),
-            "reduce_and": ("({0} and {1})", True), "reduce_or": ("({0} or {1})", False),
+        tpl, empty = {
+            "reduce_sum": (T("({0} + {1})"), 0), "reduce_prod": (T("({0} * {1})"), 1),
+            "reduce_max": (_FLOAT_MAX if kind == "float" else _INT_MAX, None),
+            "reduce_min": (_FLOAT_MIN if kind == "float" else _INT_MIN, None),
+            "reduce_and": (_BOOL_AND, True), "reduce_or": (_BOOL_OR, False),
         }[name]
         out = _objarray(out_shape)
         flat_out = out.reshape(-1)
@@ -586,11 +742,11 @@ class _Emitter:
         for i in range(flat_out.size):
             atoms = list(flat_groups[i])
             if not atoms:
-                if tmpl[1] is None:
+                if empty is None:
                     raise Unsupported(f"{name} over an empty axis")
-                flat_out[i] = _py(tmpl[1], kind)
+                flat_out[i] = _py(empty, kind)
             else:
-                flat_out[i] = self._chain(atoms, tmpl[0], kind)
+                flat_out[i] = self._chain(atoms, tpl, kind)
         return out
 
     def dot_general(self, lhs, rhs, dimension_numbers, kind):
@@ -602,6 +758,7 @@ class _Emitter:
         out_shape = batch_shape + tuple(lhs.shape[d] for d in lfree) + tuple(rhs.shape[d] for d in rfree)
         contract_shape = tuple(lhs.shape[d] for d in lc)
         out = _objarray(out_shape)
+        mul, add = T("({0} * {1})"), T("({0} + {1})")
         for idx in np.ndindex(*out_shape) if out_shape else [()]:
             b = idx[: len(lb)]
             li = idx[len(lb): len(lb) + len(lfree)]
@@ -610,20 +767,12 @@ class _Emitter:
             for c in np.ndindex(*contract_shape) if contract_shape else [()]:
                 lidx = [0] * lhs.ndim
                 ridx = [0] * rhs.ndim
-                for d, v in zip(lb, b):
-                    lidx[d] = v
-                for d, v in zip(rb, b):
-                    ridx[d] = v
-                for d, v in zip(lfree, li):
-                    lidx[d] = v
-                for d, v in zip(rfree, ri):
-                    ridx[d] = v
-                for d, v in zip(lc, c):
-                    lidx[d] = v
-                for d, v in zip(rc, c):
-                    ridx[d] = v
-                terms.append(self.emit("({0} * {1})", [lhs[tuple(lidx)], rhs[tuple(ridx)]], kind))
-            out[idx] = self._chain(terms, "({0} + {1})", kind) if terms else _py(0, kind)
+                for dims, vals, target in ((lb, b, lidx), (rb, b, ridx), (lfree, li, lidx), (rfree, ri, ridx),
+                                           (lc, c, lidx), (rc, c, ridx)):
+                    for d, v in zip(dims, vals):
+                        target[d] = v
+                terms.append(self.emit(mul, [lhs[tuple(lidx)], rhs[tuple(ridx)]], kind))
+            out[idx] = self._chain(terms, add, kind) if terms else _py(0, kind)
         return out
 
     def _starts(self, operand_shape, starts, sizes):
@@ -635,7 +784,7 @@ class _Emitter:
             if not isinstance(s, Ref):
                 result.append(min(max(int(s), 0), hi))
             else:
-                result.append(self.emit("_clampi({0}, 0, %d)" % hi, [s], "int"))
+                result.append(self.emit(_clampi(hi), [s], "int"))
         return result
 
     def dynamic_slice(self, operand, starts, sizes):
@@ -643,38 +792,26 @@ class _Emitter:
         if all(not isinstance(s, Ref) for s in st):
             idx = tuple(slice(s, s + n) for s, n in zip(st, sizes))
             return np.array(operand[idx], dtype=object)
-        # flat index = sum(start_d * stride_d) + offset of the element within the window
         strides = [int(np.prod(operand.shape[d + 1:])) for d in range(operand.ndim)]
         flat = list(operand.reshape(-1))
-        table = self._table(flat)
+        kind = _atom_kind(flat, self.kinds)
+        table = self.table(flat, kind)
         base_terms = []
         base_const = 0
         for s, stride in zip(st, strides):
             if isinstance(s, Ref):
-                base_terms.append(s if stride == 1 else self.emit("({0} * %d)" % stride, [s], "int"))
+                base_terms.append(s if stride == 1 else self.emit(T("({0} * %d)" % stride), [s], "int"))
             else:
                 base_const += s * stride
         base = base_terms[0]
         for t in base_terms[1:]:
-            base = self.emit("({0} + {1})", [base, t], "int")
+            base = self.emit(T("({0} + {1})"), [base, t], "int")
         out = _objarray(tuple(sizes))
         for idx in np.ndindex(*sizes):
             off = base_const + sum(i * stride for i, stride in zip(idx, strides))
-            pos = base if off == 0 else self.emit("({0} + %d)" % off, [base], "int")
-            out[idx] = self.emit("{0}[{1}]", [table, pos], _atom_kind(flat))
+            pos = base if off == 0 else self.emit(T("({0} + %d)" % off), [base], "int")
+            out[idx] = self.emit(_INDEX, [table, pos], kind)
         return out
-
-    def _table(self, atoms):
-        """A tuple local holding ``atoms`` (for dynamic indexing)."""
-        body = ", ".join(_lit(a) for a in atoms) + ("," if len(atoms) == 1 else "")
-        expr = f"({body})"
-        if expr in self.cse:
-            return self.cse[expr]
-        self.counter += 1
-        ref = Ref(f"t{self.counter}")
-        self.lines.append((ref.name, expr, tuple(a.name for a in atoms if isinstance(a, Ref))))
-        self.cse[expr] = ref
-        return ref
 
     def dynamic_update_slice(self, operand, update, starts):
         st = self._starts(operand.shape, starts, update.shape)
@@ -685,16 +822,18 @@ class _Emitter:
             return out
         if operand.ndim != 1:
             raise Unsupported("dynamic_update_slice with a dynamic index on a multi-dimensional operand")
-        kind = _atom_kind(list(operand.reshape(-1)))
+        kind = _atom_kind(list(operand.reshape(-1)), self.kinds)
         start = st[0]
         n = update.shape[0]
         out = _objarray(operand.shape)
-        upd = self._table(list(update))
+        upd = self.table(list(update), kind)
         for j in range(operand.shape[0]):
             # element j comes from update[j - start] when start <= j < start + n
-            inside = self.emit("(0 <= %d - {0} < %d)" % (j, n), [start], "bool")
-            picked = self.emit("{0}[_clampi(%d - {1}, 0, %d)]" % (j, n - 1), [upd, start], kind)
-            out[j] = self.emit("({1} if {0} else {2})", [inside, picked, operand[j]], kind)
+            inside = self.emit(T("(0 <= %d - {0} < %d)" % (j, n), "((%d - {0} >= 0) && (%d - {0} < %d))" % (j, j, n)),
+                               [start], "bool")
+            picked = self.emit(T("{0}[_clampi(%d - {1}, 0, %d)]" % (j, n - 1), "{0}[odc_clampi(%d - {1}, 0, %d)]" % (j, n - 1)),
+                               [upd, start], kind)
+            out[j] = self.emit(T("({1} if {0} else {2})", "({0} ? {1} : {2})"), [inside, picked, operand[j]], kind)
         return out
 
     def scan(self, p, ins):
@@ -731,22 +870,22 @@ class _Emitter:
             return self.closed(branches[i], ops)
         # pure branches: evaluate all, select by the index
         results = [self.closed(b, ops) for b in branches]
+        clamped = self.emit(_clampi(len(branches) - 1), [idx], "int")
         outs = []
         for k in range(len(results[0])):
-            kind = _atom_kind(list(results[0][k].reshape(-1)) or [0.0])
+            kind = _atom_kind(list(results[0][k].reshape(-1)), self.kinds)
             cases = [r[k] for r in results]
-            if len(cases) == 2:
-                pred = self.emit("({0} != 0)", [idx], "bool")
-                outs.append(self.elementwise("({2} if {0} else {1})", [np.array(pred, dtype=object).reshape(()), *cases], kind))
-            else:
-                clamped = self.emit("_clampi({0}, 0, %d)" % (len(cases) - 1), [idx], "int")
-                tmpl = "(" + ", ".join("{%d}" % (i + 1) for i in range(len(cases))) + ")[{0}]"
-                outs.append(self.elementwise(tmpl, [np.array(clamped, dtype=object).reshape(()), *cases], kind))
+            sel = np.array(clamped, dtype=object).reshape(())
+            outs.append(self.elementwise(_select_n(len(cases)), [sel, *cases], kind))
         return outs
 
 
-def _atom_kind(atoms) -> str:
+def _atom_kind(atoms, kinds=None) -> str:
     for a in atoms:
+        if isinstance(a, Ref):
+            if kinds and a.name in kinds:
+                return kinds[a.name]
+            continue
         if isinstance(a, bool):
             return "bool"
         if isinstance(a, int):
@@ -756,12 +895,11 @@ def _atom_kind(atoms) -> str:
     return "float"
 
 
-def _integer_pow_template(y: int, kind: str) -> str:
+def _integer_pow_template(y: int, kind: str) -> Tpl:
     if y == 0:
-        return "1.0" if kind == "float" else "1"
+        return T("1.0") if kind == "float" else T("1")
     n = abs(y)
     # exponentiation by squaring written out, as XLA does
-    terms = []
     base = "{0}"
     acc = None
     while n:
@@ -771,8 +909,10 @@ def _integer_pow_template(y: int, kind: str) -> str:
         if n:
             base = f"({base} * {base})"
     if y < 0:
-        return f"_div(1.0, {acc})" if kind == "float" else f"_idiv(1, {acc})"
-    return acc
+        if kind == "float":
+            return T(f"_div(1.0, {acc})", f"(1.0 / {acc})")
+        return T(f"_idiv(1, {acc})", f"odc_idiv(1, {acc})")
+    return T(acc)
 
 
 def _is_const(a, value) -> bool:
@@ -813,7 +953,6 @@ def _simplifier(name: str, kind: str):
         return simp
     if name == "div":
         return lambda ops: ops[0] if _is_const(ops[1], 1.0) and isinstance(ops[0], Ref) else None
-
     if name == "sub":
         return lambda ops: ops[0] if _is_const(ops[1], 0.0) and isinstance(ops[0], Ref) else None
     if name == "add":
@@ -828,47 +967,157 @@ def _simplifier(name: str, kind: str):
     return None
 
 
-def lower_jaxpr(closed_jaxpr, args: Sequence[Any], *, name: str = "lowered", max_unroll: int = 8) -> Lowered:
-    """Lower ``closed_jaxpr`` to Python.
+class Program:
+    """A lowered jaxpr: straight-line code, rendered to Python (``to_python``) or C (``to_c``)."""
 
-    ``args`` has one entry per jaxpr input: ``None`` for a runtime argument (passed to the
-    generated function as a flat sequence), or a concrete value (array-like) folded in as a
-    constant.  Returns a :class:`Lowered` whose function takes the runtime arguments in order
-    and returns a tuple with one flat list per jaxpr output.
+    def __init__(self, lines: list[_Line], inputs: list[tuple[int, int, str] | None], outs: list[np.ndarray],
+                 kinds: dict[str, str]):
+        self.lines = lines       # after dead-code elimination, in order
+        self.inputs = inputs     # per jaxpr input: (position, size, kind) when a runtime argument, else None
+        self.outs = outs
+        self.kinds = kinds
+
+    @property
+    def n_ops(self) -> int:
+        return len(self.lines)
+
+    def to_python(self, name: str = "lowered") -> Lowered:
+        params, header = [], []
+        for spec in self.inputs:
+            if spec is None:
+                continue
+            i, size, _ = spec
+            params.append(f"A{i}")
+            if size:
+                header.append(", ".join(f"a{i}_{k}" for k in range(size)) + ("," if size == 1 else "") + f" = A{i}")
+        body = [f"    {h}" for h in header]
+        for line in self.lines:
+            if line.tpl is None:
+                body.append(f"    {line.target} = (" + ", ".join(_lit(a) for a in line.operands)
+                            + ("," if len(line.operands) == 1 else "") + ")")
+            else:
+                body.append(f"    {line.target} = " + line.tpl.py.format(*[_lit(a) for a in line.operands]))
+        ret = ", ".join("[" + ", ".join(_lit(a) for a in o.reshape(-1)) + "]" for o in self.outs)
+        source = (f"def {name}({', '.join(params)}):\n" + "\n".join(body)
+                  + f"\n    return ({ret}{',' if len(self.outs) == 1 else ''})\n")
+        namespace = dict(RUNTIME)
+        exec(compile(source, f"<lowered {name}>", "exec"), namespace)  # noqa: S102 - generated from the jaxpr
+        return Lowered(source, namespace[name], len(self.lines), [int(o.size) for o in self.outs])
+
+    def to_c(self, name: str = "lowered") -> str:
+        """C99 source of ``void name(const double *A<i>..., double *R<j>...)`` (runtime inputs, then outputs).
+
+        Every runtime input and every output is a flat float64 array.  Compile without fast-math
+        and with ``-ffp-contract=off`` to keep IEEE float64 semantics identical to the Python dialect.
+        """
+        ctype = {"float": "double", "int": "long long", "bool": "int"}
+        args, header = [], []
+        for spec in self.inputs:
+            if spec is None:
+                continue
+            i, size, kind = spec
+            if kind != "float":
+                raise Unsupported("C dialect: runtime inputs must be float64")
+            args.append(f"const double *restrict A{i}")
+            header += [f"    const double a{i}_{k} = A{i}[{k}];" for k in range(size)]
+        for j, _ in enumerate(self.outs):
+            args.append(f"double *restrict R{j}")
+        body = list(header)
+        for line in self.lines:
+            t = ctype[line.kind]
+            if line.tpl is None:
+                body.append(f"    const {t} {line.target}[{len(line.operands)}] = {{"
+                            + ", ".join(_lit_c(a) for a in line.operands) + "};")
+            else:
+                body.append(f"    const {t} {line.target} = " + line.tpl.c.format(*[_lit_c(a) for a in line.operands]) + ";")
+        for j, o in enumerate(self.outs):
+            for k, a in enumerate(o.reshape(-1)):
+                body.append(f"    R{j}[{k}] = (double)({_lit_c(a)});")
+        return f"void {name}({', '.join(args)})\n{{\n" + "\n".join(body) + "\n}\n"
+
+
+def _lit_c(atom) -> str:
+    if isinstance(atom, Ref):
+        return atom.name
+    if isinstance(atom, bool):
+        return "1" if atom else "0"
+    if isinstance(atom, int):
+        return f"{atom}LL" if atom >= 0 else f"({atom}LL)"
+    if isinstance(atom, float):
+        if atom != atom:
+            return "NAN"
+        if atom in (_inf, -_inf):
+            return "INFINITY" if atom > 0 else "(-INFINITY)"
+        text = atom.hex()  # exact
+        return f"({text})" if text.startswith("-") else text
+    raise Unsupported(f"constant of type {type(atom).__name__}")
+
+
+C_PRELUDE = r"""/* Generated by odocompass fmu/jaxpr_lower.py from the jaxpr of jaxmodel.run_from: do not edit. */
+#include <math.h>
+static inline double odc_sign(double x) { return x > 0.0 ? 1.0 : (x < 0.0 ? -1.0 : x); }
+static inline long long odc_isign(long long x) { return (x > 0) - (x < 0); }
+static inline long long odc_f2i(double x) {
+    if (x != x) return 0;
+    if (x >= 2147483647.0) return 2147483647LL;
+    if (x <= -2147483648.0) return -2147483648LL;
+    return (long long)x;
+}
+static inline long long odc_idiv(long long a, long long b) { return b == 0 ? -1 : a / b; }
+static inline long long odc_irem(long long a, long long b) { return b == 0 ? a : a % b; }
+static inline long long odc_clampi(long long i, long long lo, long long hi) { return i < lo ? lo : (i > hi ? hi : i); }
+static inline double odc_logistic(double x) {
+    if (x >= 0.0) return 1.0 / (1.0 + exp(-x));
+    double e = exp(x);
+    return e / (1.0 + e);
+}
+"""
+
+
+def lower_program(closed_jaxpr, args: Sequence[Any], *, max_unroll: int = 8) -> Program:
+    """Lower ``closed_jaxpr`` to a :class:`Program`.
+
+    ``args`` has one entry per jaxpr input: ``None`` for a runtime argument, or a concrete value
+    (array-like) folded in as a constant.
     """
     jaxpr = closed_jaxpr.jaxpr
     if len(args) != len(jaxpr.invars):
         raise ValueError(f"{len(args)} arguments for a jaxpr with {len(jaxpr.invars)} inputs")
     em = _Emitter(max_unroll)
-    in_arrays, header, params = [], [], []
+    in_arrays, inputs = [], []
     for i, (v, a) in enumerate(zip(jaxpr.invars, args)):
         kind = _kind(v.aval.dtype)
         shape = tuple(v.aval.shape)
         if a is None:
             size = int(np.prod(shape))
             names = [f"a{i}_{k}" for k in range(size)]
-            params.append(f"A{i}")
-            if size:
-                header.append(", ".join(names) + (",", "")[size > 1] + f" = A{i}")
+            for n in names:
+                em.kinds[n] = kind
+            inputs.append((i, size, kind))
             in_arrays.append(_objarray(shape, [Ref(n) for n in names]))
         else:
             value = np.asarray(a)
             if value.shape != shape:
                 raise ValueError(f"constant argument {i} has shape {value.shape}, expected {shape}")
+            inputs.append(None)
             in_arrays.append(_const_array(value, kind))
     outs = em.closed(closed_jaxpr, in_arrays)
 
     # dead-code elimination from the outputs backwards
     needed = {a.name for o in outs for a in o.reshape(-1) if isinstance(a, Ref)}
     kept = []
-    for target, expr, used in reversed(em.lines):
-        if target in needed:
-            kept.append((target, expr))
-            needed.update(used)
+    for line in reversed(em.lines):
+        if line.target in needed:
+            kept.append(line)
+            needed.update(line.used)
     kept.reverse()
-    body = [f"    {h}" for h in header] + [f"    {t} = {e}" for t, e in kept]
-    ret = ", ".join("[" + ", ".join(_lit(a) for a in o.reshape(-1)) + "]" for o in outs)
-    source = f"def {name}({', '.join(params)}):\n" + "\n".join(body) + f"\n    return ({ret}{',' if len(outs) == 1 else ''})\n"
-    namespace = dict(RUNTIME)
-    exec(compile(source, f"<lowered {name}>", "exec"), namespace)  # noqa: S102 - generated from the jaxpr
-    return Lowered(source, namespace[name], len(kept), [int(o.size) for o in outs])
+    return Program(kept, inputs, outs, em.kinds)
+
+
+def lower_jaxpr(closed_jaxpr, args: Sequence[Any], *, name: str = "lowered", max_unroll: int = 8) -> Lowered:
+    """Lower ``closed_jaxpr`` to a Python function (see :func:`lower_program` for ``args``).
+
+    The function takes the runtime arguments in order (flat sequences) and returns a tuple with
+    one flat list per jaxpr output.
+    """
+    return lower_program(closed_jaxpr, args, max_unroll=max_unroll).to_python(name)

@@ -63,7 +63,11 @@ def _parser() -> argparse.ArgumentParser:
     m = sub.add_parser("import", help="convert a real log to the drive schema")
     m.add_argument("kind", choices=("comma2k19", "husky"))
     m.add_argument("source", help="comma2k19 segment folder or Husky .bag file")
-    m.add_argument("--out", required=True)
+    m.add_argument("--out", required=True, help="drive file; <stem>.params.json is written beside it")
+    m.add_argument("--axle", choices=("front", "rear"), default=None,
+                   help="comma2k19: wheel pair integrated into pulses (default front); Husky: rear only")
+    m.add_argument("--dpp", type=float, default=None, metavar="M",
+                   help="metres per pulse of the synthesised counters (default 0.02 comma2k19, 0.001 Husky)")
     return p
 
 

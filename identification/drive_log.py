@@ -25,6 +25,7 @@ import gc
 import logging
 import math
 import os
+import re
 import sys
 import warnings
 from contextlib import contextmanager
@@ -86,6 +87,7 @@ class Drive:
 
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
+    text = re.sub(r"'?<mmap\.mmap [^>]*>'?", "the file", text)  # asammdf names the file by its mmap
     return text or type(exc).__name__
 
 
@@ -112,7 +114,11 @@ def wrap_deg(angle):
 
 
 def _num(v) -> str:
-    return f"{float(v):.10g}"
+    """A value as a user reads it: integers without '.0', floats in their shortest exact form."""
+    v = float(v)
+    if v.is_integer() and abs(v) < 1e16:
+        return str(int(v))
+    return repr(v)
 
 
 def _where(source: str, row: int, time_s=None) -> str:
@@ -134,7 +140,6 @@ def _quiet_libraries():
             warnings.simplefilter("ignore")
             yield
     finally:
-        gc.collect()  # objects of a failed open are finalised here, while their noise is muted
         logger.disabled = old_disabled
         sys.unraisablehook = old_hook
 
@@ -213,15 +218,23 @@ def read_table(path) -> dict[str, np.ndarray]:
     if size == 0:
         raise DriveLogError(f"{path}: empty log (the file has 0 bytes)")
     reader = {"csv": _read_csv, "parquet": _read_parquet, "mf4": _read_mf4}[fmt]
-    try:
-        with _quiet_libraries():
+    error = None
+    with _quiet_libraries():
+        try:
             columns = reader(path)
-    except DriveLogError:
-        raise
-    except MemoryError:
-        raise DriveLogError(f"{path}: too large to read into memory") from None
-    except Exception as exc:  # any library failure on a corrupt file: one line, never a traceback
-        raise DriveLogError(f"{path}: cannot read as {fmt.upper()}: {_one_line(exc)}") from None
+        except DriveLogError as exc:
+            error = str(exc)
+        except MemoryError:
+            error = f"{path}: too large to read into memory"
+        except Exception as exc:  # any library failure on a corrupt file: one line, never a traceback
+            error = f"{path}: cannot read as {fmt.upper()}: {_one_line(exc)}"
+        if error is not None:
+            # The failed exception (and the half-built reader objects its traceback holds) is gone
+            # now; finalise them while their __del__ noise is muted (asammdf's MDF4.__del__ raises
+            # on a file it could not open), and raise a fresh error that holds no context.
+            gc.collect()
+    if error is not None:
+        raise DriveLogError(error)
     return columns
 
 
@@ -238,7 +251,7 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     import pyarrow.compute as pc
     import pyarrow.csv as pcsv
 
-    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
         header = next(csv.reader(fh), None)
     if not header or all(not h.strip() for h in header):
         raise DriveLogError(f"{path}: empty log (no header line)")
@@ -314,21 +327,29 @@ def _read_mf4(path: Path) -> dict[str, np.ndarray]:
         raise DriveLogError(f"{path}: not an ASAM MDF file (no MDF identification block)")
     mdf = MDF(path)
     try:
-        # Group of each channel name (first occurrence); the drive's group is that of left_pulses.
-        where: dict[str, tuple[int, int]] = {}
+        # The drive's channel group is the first that holds left_pulses; its master is time_s unless
+        # it has a channel of that name.  Schema channels are taken from that group if it has them,
+        # else from their first group (and must then share its time base); other groups' extra
+        # channels are ignored.
+        occurrences: dict[str, list[tuple[int, int]]] = {}
         for gi, group in enumerate(mdf.groups):
             for ci, ch in enumerate(group.channels):
-                where.setdefault(ch.name, (gi, ci))
-        if "left_pulses" not in where:
+                occurrences.setdefault(ch.name, []).append((gi, ci))
+        if "left_pulses" not in occurrences:
             raise DriveLogError(f"{path}: missing required column 'left_pulses' (no MDF channel of that name)")
-        drive_group = where["left_pulses"][0]
+        drive_group = occurrences["left_pulses"][0][0]
+        where: dict[str, tuple[int, int]] = {}
+        for name, places in occurrences.items():
+            own = [p for p in places if p[0] == drive_group]
+            if own:
+                where[name] = own[0]
+            elif name in SCHEMA_COLUMNS and name != "time_s":
+                where[name] = places[0]
         master = np.asarray(mdf.get_master(drive_group), dtype=np.float64)
         out: dict[str, np.ndarray] = {}
-        if "time_s" not in where or where["time_s"][0] != drive_group:
+        if "time_s" not in where:
             out["time_s"] = master
         for name, (gi, ci) in where.items():
-            if gi != drive_group and name not in SCHEMA_COLUMNS:
-                continue
             sig = mdf.get(name, group=gi, index=ci, raw=False)
             samples = np.asarray(sig.samples)
             if samples.ndim != 1:
@@ -403,8 +424,8 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
     # Pulse counters: finite non-negative integers (exact in float64).
     for name in PULSE_COLUMNS:
         p = cols[name].astype(np.float64)
-        problems = [(~np.isfinite(p), "is {v}, a pulse count must be a finite integer"),
-                    (np.isfinite(p) & (p != np.round(p)), "{v} is not an integer pulse count"),
+        problems = [(~np.isfinite(p), "is {v} (must be a finite integer)"),
+                    (np.isfinite(p) & (p != np.round(p)), "{v} is not an integer"),
                     (np.isfinite(p) & (p < 0.0), "{v} is negative; pulse counters count up from 0 and wrap "
                                                    "at counter_modulus"),
                     (np.isfinite(p) & (p > MAX_EXACT_COUNT), "{v} exceeds 2**53 (not exact in float64)")]

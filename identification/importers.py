@@ -471,6 +471,13 @@ def husky_imu_yaw(imu: np.ndarray) -> np.ndarray:
     return np.unwrap(np.arctan2(world_from_base[:, 1, 0], world_from_base[:, 0, 0]))
 
 
+def husky_gyro_yaw_rate(imu: np.ndarray) -> np.ndarray:
+    """Yaw rate (rad/s, counter-clockwise about up) of base_link from the IMU's angular velocity."""
+    yaw, pitch, roll = HUSKY_IMU_MOUNT_YPR
+    base_from_imu = _rot_z(yaw) @ _rot_y(pitch) @ _rot_x(roll)
+    return (imu[:, 5:8] @ base_from_imu.T)[:, 2]
+
+
 def local_east_north(lat_deg, lon_deg, lat0_deg, lon0_deg) -> tuple[np.ndarray, np.ndarray]:
     """Metres east/north of (lat0, lon0) on the WGS-84 ellipsoid's local radii (fine over a few km)."""
     a, f = 6378137.0, 1.0 / 298.257223563
@@ -484,11 +491,12 @@ def local_east_north(lat_deg, lon_deg, lat0_deg, lon0_deg) -> tuple[np.ndarray, 
     return east, north
 
 
-def gps_course_check(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span: int = 10,
-                     min_speed: float = 0.2, max_turn_deg: float = 5.0) -> dict[str, float]:
+def gps_course_check(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span: int = 15,
+                     min_speed: float = 0.4, max_turn_deg: float = 5.0) -> dict[str, float]:
     """Compare a heading series with the GPS course over ground on straight stretches.
 
-    Course from fixes ``span`` apart; kept where the robot moved at least ``min_speed`` m/s on
+    Course from fixes ``span`` apart (15 fixes: 6 s, 2-6 m at the Husky's speeds, so a fix error of
+    ~1 m gives ~10-25° of course noise); kept where the robot moved at least ``min_speed`` m/s on
     average and the odometry yaw changed less than ``max_turn_deg`` over the stretch.
     """
     if len(fix_t) <= span:
@@ -504,6 +512,32 @@ def gps_course_check(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span
     stats = _circular_stats_deg(course - h)
     stats["n"] = int(ok.sum())
     return stats
+
+
+def course_scale_fit(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span: int = 15,
+                     min_speed: float = 0.4, max_turn_deg: float = 5.0,
+                     scales=np.linspace(0.8, 1.3, 501)) -> dict[str, float]:
+    """Which scale of a heading's *changes* fits the GPS course best: h_s = h0 + s (h - h0).
+
+    Same straight-stretch selection as ``gps_course_check``; the constant offset is removed at
+    each trial scale; returns the best scale, the offset and the RMS about it (deg).
+    """
+    de, dn = east[span:] - east[:-span], north[span:] - north[:-span]
+    ta, tb = fix_t[:-span], fix_t[span:]
+    turn = np.abs(np.interp(tb, odo_t, odo_yaw) - np.interp(ta, odo_t, odo_yaw))
+    ok = (np.hypot(de, dn) >= min_speed * (tb - ta)) & (np.rad2deg(turn) < max_turn_deg)
+    course = np.arctan2(de, dn)[ok]
+    h = np.unwrap(np.deg2rad(np.asarray(heading_deg, dtype=np.float64)))
+    hc = np.interp(0.5 * (ta + tb)[ok], t, h) - h[0]
+    best = None
+    for sc in scales:
+        e = course - sc * hc
+        off = np.angle(np.mean(np.exp(1j * e)))
+        rms = float(np.sqrt(np.mean(np.angle(np.exp(1j * (e - off))) ** 2)))
+        if best is None or rms < best[0]:
+            best = (rms, float(sc), float(off))
+    return {"scale": round(best[1], 3), "offset_deg": round(float(np.rad2deg(best[2])), 1),
+            "rms_deg": round(float(np.rad2deg(best[0])), 2), "n": int(ok.sum())}
 
 
 def import_husky(source, *, wheel_separation: float = HUSKY_WHEEL_SEPARATION, dpp: float = HUSKY_DPP,
@@ -574,11 +608,15 @@ def import_husky(source, *, wheel_separation: float = HUSKY_WHEEL_SEPARATION, dp
         "odometry_yaw_change_deg": round(float(-np.rad2deg(odo_yaw[-1])), 2),
         "imu_yaw_change_deg": round(float(-np.rad2deg(yaw_t[-1] - yaw_t[0])), 2),
     }
+    # The IMU's own gyro (z rate of base_link), integrated: a third opinion on the turn angles.
+    gyro_yaw = np.interp(t, imu[:, 0], cumulative_trapezoid(husky_gyro_yaw_rate(imu), imu[:, 0]))
+    gyro_yaw -= gyro_yaw[0]
     i240 = int(np.searchsorted(t - t[0], 240.0))
     if i240 < len(t):
         report["heading_change_at_240s_deg"] = {
             "odometry": round(float(-np.rad2deg(odo_yaw[i240])), 1),
-            "imu": round(float(-np.rad2deg(yaw_t[i240] - yaw_t[0])), 1)}
+            "imu": round(float(-np.rad2deg(yaw_t[i240] - yaw_t[0])), 1),
+            "imu_gyro_integral": round(float(-np.rad2deg(gyro_yaw[i240])), 1)}
 
     if len(fix):
         good = np.isfinite(fix[:, 1]) & np.isfinite(fix[:, 2]) & (fix[:, 4] >= 0)
@@ -596,7 +634,14 @@ def import_husky(source, *, wheel_separation: float = HUSKY_WHEEL_SEPARATION, dp
         report["gps_course_minus_ref"] = gps_course_check(t, ref_deg, fx[:, 0], east, north, t, odo_yaw)
         report["gps_course_minus_odometry_heading"] = gps_course_check(t, odom_heading, fx[:, 0], east, north, t,
                                                                        odo_yaw)
-    columns["odom_heading_deg"] = odom_heading  # extra column: the controller's yaw from the same start
+        gyro_heading = wrap_deg(ref_deg[0] - np.rad2deg(gyro_yaw))
+        report["gps_course_scale_fit"] = {
+            name: course_scale_fit(t, h_deg, fx[:, 0], east, north, t, odo_yaw)
+            for name, h_deg in (("imu_reference", ref_deg), ("controller_odometry", odom_heading),
+                                ("imu_gyro_integral", gyro_heading))}
+    # Extra columns (read_drive ignores them): the controller's and the IMU gyro's yaw, from the same start.
+    columns["odom_heading_deg"] = odom_heading
+    columns["gyro_heading_deg"] = wrap_deg(ref_deg[0] - np.rad2deg(gyro_yaw))
     return columns, report
 
 
@@ -691,12 +736,12 @@ def main(args) -> int:
     dpp = getattr(args, "dpp", None)
     if args.kind == "comma2k19":
         columns, report = import_comma2k19(args.source, axle=getattr(args, "axle", None) or "front",
-                                           dpp=dpp or COMMA_DPP)
+                                           dpp=COMMA_DPP if dpp is None else dpp)
         params = comma2k19_params(report)
     else:
         if getattr(args, "axle", None) not in (None, "rear"):
             raise OdoCompassError("the Husky import is rear-axle only (skid steer): drop --axle or use --axle rear")
-        columns, report = import_husky(args.source, dpp=dpp or HUSKY_DPP)
+        columns, report = import_husky(args.source, dpp=HUSKY_DPP if dpp is None else dpp)
         params = husky_params(report)
     try:
         write_drive(out, columns)
@@ -710,3 +755,282 @@ def main(args) -> int:
     print(f"odocompass: imported {args.kind} {args.source}: {drive.n_samples} samples, "
           f"{drive.metadata['duration_s']:.1f} s; wrote {out} and {ppath}", file=sys.stderr)
     return 0
+
+
+# --- real-data experiments (docs/real-data.md) ---------------------------------------------------
+#   .venv/bin/python -m identification.importers experiments [--real-dir ../shared/data/real]
+#        [--out build/real-data] [--img docs/img] [--max-iter 300]
+
+
+def _flat(params_json: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in params_json.items() if k != "report"}
+
+
+def comma_hard_iron_offsets(columns, until_s: float) -> tuple[float, float]:
+    """One-heading hard-iron estimate (X0, Y0) from samples with time_s < until_s: the mean of the
+    measured horizontal field minus the WMM field expected at the *reference* heading.
+
+    Uses the reference, so it is a calibration for a demonstration on the remaining samples, not
+    an independent compass check (one heading cannot separate an offset from a heading error).
+    """
+    t = np.asarray(columns["time_s"])
+    sel = t < until_s
+    psi_m = np.deg2rad(columns["ref_heading_deg"][sel] - SF_2018["declination_deg"])
+    h = SF_2018["horizontal_uT"]
+    x0 = float(np.mean(columns["compass_x"][sel] - h * np.cos(psi_m)))
+    y0 = float(np.mean(columns["compass_y"][sel] - h * np.sin(psi_m)))
+    return x0, y0
+
+
+def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[str, Any]:
+    import jaxmodel
+    from .drive_log import drive_from_columns
+    from .estimate import estimate_drive
+
+    columns, report = import_comma2k19(Path(real_dir) / "comma2k19_example")
+    pjson = comma2k19_params(report)
+    drive = drive_from_columns(columns, source="comma2k19")
+    t = np.asarray(columns["time_s"])
+    ref = columns["ref_heading_deg"]
+    modes = ("compass", "odometer", "complementary")
+    res: dict[str, Any] = {"import": report}
+
+    def run_modes(pdict, label):
+        params = jaxmodel.make_params(_flat(pdict))
+        outs = {m: estimate_drive(params, drive, jaxmodel.Config(mode=m)) for m in modes}
+        return outs
+
+    raw = run_modes(pjson, "uncalibrated")
+    res["uncalibrated_rmse_deg"] = {m: round(heading_rmse_deg(o["heading_deg"], ref), 2) for m, o in raw.items()}
+    res["uncalibrated_mean_error_deg"] = {m: round(float(np.mean(wrap_deg(o["heading_deg"] - ref))), 2)
+                                          for m, o in raw.items()}
+    wheel = raw["odometer"]["wheel_heading_deg"]
+    rel = wrap_deg((wheel - wheel[0]) - (ref - ref[0]))
+    res["odometer_heading_change_error_deg"] = {"rms": round(float(np.sqrt(np.mean(rel ** 2))), 2),
+                                                "max_abs": round(float(np.max(np.abs(rel))), 2),
+                                                "end": round(float(rel[-1]), 2)}
+    res["dpp_ratio_end"] = float(raw["odometer"]["dpp_ratio"][-1])
+
+    # Rear pair for comparison (the reason for the front default).
+    rear_cols, rear_rep = import_comma2k19(Path(real_dir) / "comma2k19_example", axle="rear")
+    rear_params = jaxmodel.make_params(_flat(comma2k19_params(rear_rep)))
+    rear_drive = drive_from_columns(rear_cols, source="comma2k19 rear")
+    res["rear_pair_heading_change_error_end_deg"] = {}
+    for cal in (True, False):
+        o = estimate_drive(rear_params, rear_drive, jaxmodel.Config(mode="odometer", calibration=cal))
+        w = o["wheel_heading_deg"]
+        res["rear_pair_heading_change_error_end_deg"]["calibration_on" if cal else "calibration_off"] = round(
+            float(wrap_deg((w[-1] - w[0]) - (ref[-1] - ref[0]))), 2)
+    o = estimate_drive(jaxmodel.make_params(_flat(pjson)), drive,
+                       jaxmodel.Config(mode="odometer", calibration=False))
+    w = o["wheel_heading_deg"]
+    res["front_pair_heading_change_error_end_deg_calibration_off"] = round(
+        float(wrap_deg((w[-1] - w[0]) - (ref[-1] - ref[0]))), 2)
+
+    # Hard-iron offsets from the first half (with the reference), evaluated on the second half.
+    half = 0.5 * float(t[-1])
+    x0, y0 = comma_hard_iron_offsets(columns, half)
+    cal_json = dict(pjson, X0=x0, Y0=y0)
+    cal = run_modes(cal_json, "calibrated")
+    second = t >= half
+    res["hard_iron_offsets_uT"] = {"X0": round(x0, 2), "Y0": round(y0, 2), "from_s": [0.0, round(half, 1)]}
+    res["calibrated_rmse_second_half_deg"] = {
+        m: round(heading_rmse_deg(o["heading_deg"][second], ref[second]), 2) for m, o in cal.items()}
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "comma2k19.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
+    (out_dir / "comma2k19.calibrated.params.json").write_text(json.dumps(cal_json, indent=2) + "\n")
+
+    # Figures.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    ax[0].plot(t, ref, label="reference (pose, camera axis)")
+    ax[0].plot(t, columns["vel_heading_deg"], label="pose velocity direction")
+    ax[0].plot(t, ref[0] + wrap_deg(wheel - wheel[0]), label="odometer (front pair), started at the reference")
+    ax[0].set_ylabel("heading [deg]")
+    ax[0].legend(fontsize=8)
+    ax[0].set_title("comma2k19 RAV4 segment: headings")
+    for m in modes:
+        ax[1].plot(t, wrap_deg(raw[m]["heading_deg"] - ref), label=f"{m} (X0 = Y0 = 0)")
+    ax[1].set_ylabel("error vs pose [deg]")
+    ax[1].legend(fontsize=8)
+    for m in modes:
+        ax[2].plot(t, wrap_deg(cal[m]["heading_deg"] - ref), label=f"{m} (X0, Y0 from 0-{half:.0f} s)")
+    ax[2].axvspan(0.0, half, color="0.9", label="offset estimation span")
+    ax[2].set_ylabel("error vs pose [deg]")
+    ax[2].set_xlabel("time [s]")
+    ax[2].legend(fontsize=8)
+    fig.tight_layout()
+    img_dir.mkdir(parents=True, exist_ok=True)
+    fig.savefig(img_dir / "comma2k19_headings.png", dpi=90)
+    plt.close(fig)
+
+    # Levelling evidence: compass offset against the road's pitch.
+    arr = _load_comma(Path(real_dir) / "comma2k19_example")
+    pose = comma_pose(arr)
+    tm = arr["mag_t"]
+    pitch = np.interp(tm, pose["t"], pose["pitch"])
+    roll = np.interp(tm, pose["t"], pose["roll"])
+    refm = _interp_angle_deg(tm, pose["t"], pose["heading"])
+    variants = {"levelled, z up (used)": level(arr["mag_v"] @ COMMA_MAG_AXES.T, pitch, roll),
+                "levelled, z down (README axes)": level(arr["mag_v"], pitch, roll),
+                "not levelled": arr["mag_v"]}
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    res["levelling"] = {}
+    for name, v in variants.items():
+        off = wrap_deg(np.rad2deg(np.arctan2(-v[:, 1], v[:, 0])) - refm)
+        slope = float(np.polyfit(np.rad2deg(pitch), off, 1)[0])
+        res["levelling"][name] = {"std_deg": round(float(np.std(off)), 2), "slope_deg_per_deg_pitch": round(slope, 2)}
+        ax[0].plot(tm - tm[0], off - np.mean(off), label=f"{name}: std {np.std(off):.2f}°, {slope:+.2f}°/° pitch")
+    ax[0].set_ylabel("magnetic heading - reference\n(minus its mean) [deg]")
+    ax[0].legend(fontsize=8)
+    ax[0].set_title("comma2k19 magnetometer: which z sign levels the compass")
+    ax[1].plot(tm - tm[0], np.rad2deg(pitch), label="pitch (pose)")
+    ax[1].plot(tm - tm[0], np.rad2deg(roll), label="roll (pose)")
+    ax[1].set_ylabel("[deg]")
+    ax[1].set_xlabel("time [s]")
+    ax[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(img_dir / "comma2k19_levelling.png", dpi=90)
+    plt.close(fig)
+    return res
+
+
+def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: int = 300,
+                         train_fraction: float = 0.6) -> dict[str, Any]:
+    import time
+
+    import jaxmodel
+    from .drive_log import drive_from_columns
+    from .estimate import estimate_drive
+    from .identify import identify
+
+    bag = Path(real_dir) / "husky_test1" / "test1.bag"
+    columns, report = import_husky(bag)
+    pjson = husky_params(report)
+    nominal = jaxmodel.make_params(_flat(pjson))
+    drive = drive_from_columns(columns, source=str(bag))
+    train, val = split_drive(drive, train_fraction)
+    res: dict[str, Any] = {"import": report, "train_s": round(train.metadata["duration_s"], 1),
+                           "validate_s": round(val.metadata["duration_s"], 1)}
+
+    t0 = time.perf_counter()
+    fitted, fit_report = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
+                                  max_iter=max_iter, progress=sys.stderr.isatty())
+    res["identify_wall_s"] = round(time.perf_counter() - t0, 1)
+    res["identify_report"] = fit_report
+    res["nominal"] = {"T_R": float(nominal.T_R), "a": float(nominal.a)}
+    res["identified"] = {"T_R": float(fitted.T_R), "a": float(fitted.a)}
+
+    config = jaxmodel.Config(mode="odometer")
+    rows = {}
+    outs = {}
+    for name, params in (("nominal", nominal), ("identified", fitted)):
+        for part, d in (("train", train), ("validate", val)):
+            o = estimate_drive(params, d, config)
+            outs[(name, part)] = o
+            rows.setdefault(name, {})[part] = round(heading_rmse_deg(o["heading_deg"], np.rad2deg(d.ref_heading)), 2)
+    res["odometer_rmse_vs_imu_deg"] = rows
+
+    # Independent check: GPS course over ground on straight stretches of the validation part.
+    fix_t = np.asarray(columns["time_s"])[columns["fix_valid"] > 0]
+    fe = np.asarray(columns["fix_east_m"])[columns["fix_valid"] > 0]
+    fn = np.asarray(columns["fix_north_m"])[columns["fix_valid"] > 0]
+    tv = np.asarray(val.inputs.time_s)
+    in_val = fix_t >= tv[0]
+    odo_yaw = -np.unwrap(np.deg2rad(columns["odom_heading_deg"]))
+    gps = {}
+    gps["imu_reference"] = gps_course_check(tv, np.rad2deg(val.ref_heading), fix_t[in_val], fe[in_val], fn[in_val],
+                                            np.asarray(columns["time_s"]), odo_yaw)
+    for name in ("nominal", "identified"):
+        gps[f"odometer_{name}"] = gps_course_check(tv, outs[(name, "validate")]["heading_deg"], fix_t[in_val],
+                                                   fe[in_val], fn[in_val], np.asarray(columns["time_s"]), odo_yaw)
+    res["gps_course_check_validate"] = gps
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "husky.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
+    jaxmodel.save_params(out_dir / "husky.identified.params.json", fitted,
+                         report={"identify": fit_report, "import": report})
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(columns["time_s"])
+    ref = np.rad2deg(drive.ref_heading)
+    fig, ax = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
+    ax[0].plot(t, np.rad2deg(np.unwrap(np.deg2rad(ref))), color="k", label="IMU yaw (reference)")
+    full_nom = estimate_drive(nominal, drive, config)
+    full_fit = estimate_drive(fitted, drive, config)
+    for name, o, c in (("nominal", full_nom, "C0"), ("identified", full_fit, "C3")):
+        ax[0].plot(t, np.rad2deg(np.unwrap(np.deg2rad(o["heading_deg"]))), color=c,
+                   label=f"odometer, {name} T_R={float((nominal if name == 'nominal' else fitted).T_R):.3f} m")
+    for name, c in (("nominal", "C0"), ("identified", "C3")):
+        o = outs[(name, "validate")]
+        ax[0].plot(tv, np.rad2deg(np.unwrap(np.deg2rad(o["heading_deg"]))), color=c, ls="--",
+                   label=f"odometer, {name}, restarted at the split")
+    # GPS course (straight stretches) for orientation.
+    span = 10
+    de, dn = fe[span:] - fe[:-span], fn[span:] - fn[:-span]
+    tc = 0.5 * (fix_t[span:] + fix_t[:-span])
+    ok = np.hypot(de, dn) >= 0.2 * (fix_t[span:] - fix_t[:-span])
+    course = np.rad2deg(np.arctan2(de, dn))[ok]
+    unwrapped_ref = np.interp(tc[ok], t, np.rad2deg(np.unwrap(np.deg2rad(ref))))
+    course = unwrapped_ref + wrap_deg(course - unwrapped_ref)
+    ax[0].plot(tc[ok], course, ".", ms=2, color="0.6", label="GPS course over ground (4 s baseline)")
+    split_t = float(tv[0])
+    for a in ax:
+        a.axvline(split_t, color="0.3", lw=1, ls=":")
+    ax[0].set_ylabel("heading [deg, unwrapped]")
+    ax[0].set_title(f"Husky test1.bag: identification of T_R and a on the first {train_fraction:.0%}")
+    ax[0].legend(fontsize=7, loc="lower left")
+    for name, c in (("nominal", "C0"), ("identified", "C3")):
+        o = outs[(name, "validate")]
+        ax[1].plot(tv, wrap_deg(o["heading_deg"] - np.rad2deg(val.ref_heading)), color=c,
+                   label=f"{name}: RMSE {rows[name]['validate']:.2f}° on the last {1 - train_fraction:.0%}")
+        o = outs[(name, "train")]
+        ax[1].plot(np.asarray(train.inputs.time_s), wrap_deg(o["heading_deg"] - np.rad2deg(train.ref_heading)),
+                   color=c, alpha=0.5, label=f"{name}: RMSE {rows[name]['train']:.2f}° on the first {train_fraction:.0%}")
+    ax[1].set_ylabel("odometer - IMU yaw [deg]")
+    ax[1].set_xlabel("time [s]")
+    ax[1].legend(fontsize=8)
+    fig.tight_layout()
+    img_dir.mkdir(parents=True, exist_ok=True)
+    fig.savefig(img_dir / "husky_identification.png", dpi=90)
+    plt.close(fig)
+    return res
+
+
+def _experiments_main(argv=None) -> int:
+    import argparse
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    p = argparse.ArgumentParser(prog="python -m identification.importers",
+                                description="real-data experiments of docs/real-data.md")
+    p.add_argument("what", choices=("experiments", "comma2k19", "husky"))
+    here = Path(__file__).resolve().parents[1]
+    p.add_argument("--real-dir", default=str(here.parent / "shared" / "data" / "real"))
+    p.add_argument("--out", default=str(here / "build" / "real-data"))
+    p.add_argument("--img", default=str(here / "docs" / "img"))
+    p.add_argument("--max-iter", type=int, default=300)
+    a = p.parse_args(argv)
+    results = {}
+    if a.what in ("experiments", "comma2k19"):
+        results["comma2k19"] = run_comma_experiment(Path(a.real_dir), Path(a.out), Path(a.img))
+    if a.what in ("experiments", "husky"):
+        results["husky"] = run_husky_experiment(Path(a.real_dir), Path(a.out), Path(a.img), max_iter=a.max_iter)
+    Path(a.out).mkdir(parents=True, exist_ok=True)
+    (Path(a.out) / f"{a.what}-results.json").write_text(json.dumps(results, indent=2, default=float) + "\n")
+    print(json.dumps(results, indent=2, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_experiments_main())

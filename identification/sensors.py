@@ -130,9 +130,9 @@ class SlipModel:
     ``white_m`` is the standard deviation of an extra per-metre white error on ΔD (m per sqrt(m)).
     """
 
-    sigma_rel: float = 2.0e-4
-    corr_m: float = 3.0
-    white_m: float = 2.0e-4
+    sigma_rel: float = 1.5e-4
+    corr_m: float = 2.0
+    white_m: float = 1.0e-4
 
     def errors(self, AD, rng, state=0.0):
         """ΔD errors (m) for the signed per-sample distances AD; returns (errors, new state)."""
@@ -309,9 +309,12 @@ class AnomalyField:
     def _ensure_tiles(self, cells):
         if self.density_per_km2 <= 0.0:
             return
+        # lobes of a tile may sit up to a sixth of a tile outside it: generating the 5 x 5 tiles
+        # around a cell makes every lobe bucketed in its 3 x 3 neighbourhood exist, whatever the
+        # order in which positions are queried
         for ix, iy in cells:
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
+            for dx in (-2, -1, 0, 1, 2):
+                for dy in (-2, -1, 0, 1, 2):
                     key = (ix + dx, iy + dy)
                     if key in self._tiles_done:
                         continue
@@ -332,44 +335,51 @@ class AnomalyField:
                 idx.extend(self._buckets.get((ix + dx, iy + dy), ()))
         return np.asarray(idx, dtype=np.int64)
 
-    def _evaluate(self, x, y, what):
+    def _field_and_flag(self, x, y, lobes):
+        d2 = (x[:, None] - self._c[None, lobes, 0]) ** 2 + (y[:, None] - self._c[None, lobes, 1]) ** 2
+        r2 = self._r[lobes] ** 2
+        field = (np.exp(-d2 / r2) * (d2 < (ANOMALY_CUTOFF**2) * r2)) @ self._v[lobes]
+        flag = np.any((d2 < (ANOMALY_FLAG_RADIUS**2) * r2) & self._k[lobes][None, :], axis=1)
+        return field, flag
+
+    def evaluate(self, x, y):
+        """(anomaly field (N, 3) µT north/east/down, flag (N,) bool) at positions x, y (m); see
+        ``disturbance`` and ``unreliable``."""
         x = np.atleast_1d(np.asarray(x, dtype=np.float64))
         y = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        field = np.zeros((x.shape[0], 3))
+        flag = np.zeros(x.shape[0], bool)
+        if x.shape[0] == 1:  # one step of a vehicle model: no grouping
+            cell = (int(math.floor(x[0] / self.tile_m)), int(math.floor(y[0] / self.tile_m)))
+            self._ensure_tiles([cell])
+            lobes = self._neighbours(cell)
+            if lobes.size:
+                field, flag = self._field_and_flag(x, y, lobes)
+            return field, flag
         ix = np.floor(x / self.tile_m).astype(np.int64)
         iy = np.floor(y / self.tile_m).astype(np.int64)
         keys, inverse = np.unique(np.stack([ix, iy], axis=1), axis=0, return_inverse=True)
         inverse = inverse.reshape(-1)
         self._ensure_tiles([tuple(k) for k in keys.tolist()])
-        out = np.zeros((x.shape[0], 3)) if what == "field" else np.zeros(x.shape[0], bool)
         if self.n_lobes == 0:
-            return out
+            return field, flag
         order = np.argsort(inverse, kind="stable")
         bounds = np.searchsorted(inverse[order], np.arange(keys.shape[0] + 1))
         for j, key in enumerate(keys.tolist()):
             lobes = self._neighbours(tuple(key))
             if lobes.size == 0:
                 continue
-            if what == "flag":
-                lobes = lobes[self._k[lobes]]
-                if lobes.size == 0:
-                    continue
             pts = order[bounds[j]:bounds[j + 1]]
-            d2 = (x[pts, None] - self._c[None, lobes, 0]) ** 2 + (y[pts, None] - self._c[None, lobes, 1]) ** 2
-            r2 = self._r[lobes] ** 2
-            if what == "field":
-                w = np.exp(-d2 / r2) * (d2 < (ANOMALY_CUTOFF**2) * r2)
-                out[pts] = w @ self._v[lobes]
-            else:
-                out[pts] = np.any(d2 < (ANOMALY_FLAG_RADIUS**2) * r2, axis=1)
-        return out
+            field[pts], flag[pts] = self._field_and_flag(x[pts], y[pts], lobes)
+        return field, flag
 
     def disturbance(self, x, y):
         """Anomaly field (north, east, down) in µT at positions x, y (m): shape (N, 3)."""
-        return self._evaluate(x, y, "field")
+        return self.evaluate(x, y)[0]
 
     def unreliable(self, x, y):
         """True where a lobe known to the map is within ANOMALY_FLAG_RADIUS of its radius."""
-        return self._evaluate(x, y, "flag")
+        return self.evaluate(x, y)[1]
 
 
 class Transients:
@@ -488,14 +498,16 @@ class SensorModel:
         err, self._slip_state = self.slip.errors(np.array([AD]), self.rng, self._slip_state)
         self._measured[0] += inc_l + 0.5 * err[0]
         self._measured[1] += inc_r - 0.5 * err[0]
-        left = int(count_pulses(self._measured[0], self.dpp_left, self.counter_modulus, self.offsets[0], self.phases[0]))
+        left = int(count_pulses(self._measured[0], self.dpp_left, self.counter_modulus, self.offsets[0],
+                                self.phases[0]))
         right = int(count_pulses(self._measured[1], self.dpp_right, self.counter_modulus, self.offsets[1],
                                  self.phases[1]))
         dist = self.transients.evaluate(np.array([self.time]), self.rng)[0]
         unreliable = False
         if self.anomalies is not None:
-            dist = dist + self.anomalies.disturbance(x, y)[0]
-            unreliable = bool(self.anomalies.unreliable(x, y)[0])
+            field, flag = self.anomalies.evaluate(x, y)
+            dist = dist + field[0]
+            unreliable = bool(flag[0])
         noise = self.compass_noise_ut * self.rng.standard_normal(2)
         cx, cy = compass_reading(heading, pitch, roll, disturbance_ned=dist, noise=noise, **self.compass)
         return SensorSample(left, right, float(cx), float(cy), unreliable)

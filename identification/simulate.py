@@ -67,6 +67,7 @@ LANE_WANDER_DEG = 0.25      # heading wander around the street heading on roads 
 MAP_ERROR_DEG = 0.3         # digitization error of a street's map heading
 REF_NOISE_DEG = 0.1         # GNSS/INS reference heading: white + correlated parts, each this sigma
 COMPASS_NOISE_UT = 0.35
+START_CLEAR_M = 150.0       # no anomaly lobe centred this close to the start of the route
 
 
 @dataclass
@@ -469,8 +470,7 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
     n_anomalies = 0
     if anomalies:
         n_anomalies = _place_anomalies(field, route, float(s_k[-1]), rng_anom)
-    disturbance = field.disturbance(x, y)
-    unreliable = field.unreliable(x, y)
+    disturbance, unreliable = field.evaluate(x, y)
     transients = np.zeros_like(disturbance)
     if anomalies:
         for r_i, r in enumerate(ROAD_NAMES):
@@ -499,10 +499,10 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
         "time_s": np.round(t, 6),
         "left_pulses": left_pulses,
         "right_pulses": right_pulses,
-        "compass_x": compass_x,
-        "compass_y": compass_y,
-        "ref_heading_deg": np.degrees(sensors.wrap(psi + ref_noise)),
-        "map_heading_deg": np.degrees(map_heading),
+        "compass_x": np.round(compass_x, 3),  # 1 nT resolution
+        "compass_y": np.round(compass_y, 3),
+        "ref_heading_deg": np.round(np.degrees(sensors.wrap(psi + ref_noise)), 5),
+        "map_heading_deg": np.round(np.degrees(map_heading), 5),
         "map_valid": map_valid.astype(np.int64),
         "compass_unreliable_area": unreliable.astype(np.int64),
     }
@@ -539,7 +539,12 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
 
 
 def _place_anomalies(field, route, s_end, rng):
-    """Anomalies along the driven route: Poisson per km by road class, kinds by road class."""
+    """Anomalies along the driven route: Poisson per km by road class, kinds by road class.
+
+    None within the first START_CLEAR_M of the route: the drive starts where the compass is
+    clean (as a navigation system stores its heading at a known place), so the odometer mode,
+    which starts from the first compass sample, starts right.
+    """
     n = 0
     start = 0.0
     for lg in route.legs:
@@ -551,6 +556,8 @@ def _place_anomalies(field, route, s_end, rng):
         probs = np.array([cfg["kinds"][k] for k in kinds])
         for _ in range(count):
             s_a = start + rng.uniform(0.0, lg.length)
+            if s_a < START_CLEAR_M:
+                continue
             i = min(int(s_a / GRID_M), route.s.size - 1)
             kind = kinds[rng.choice(len(kinds), p=probs / probs.sum())]
             lateral = 0.0 if kind == "bridge" else rng.uniform(-6.0, 6.0)
@@ -573,7 +580,8 @@ def _map(route, node, rng):
     flip = np.array([rng.random() < ROADS[lg.road]["two_way"] for lg in route.legs])
     straight = np.array([lg.straight for lg in route.legs])
     leg = route.leg[node]
-    valid = straight[leg] & (np.abs(route.kappa[node]) < 1e-9)
+    nxt = np.minimum(node + 1, route.s.size - 1)
+    valid = straight[leg] & (np.abs(route.kappa[node]) < 1e-9) & (np.abs(route.kappa[nxt]) < 1e-9)
     heading = sensors.wrap(route.psi_road[node] + err[leg] + np.where(flip[leg], math.pi, 0.0))
     return np.where(valid, heading, 0.0), valid
 
@@ -592,8 +600,8 @@ def _fixes(t, x, y, sigma, road, rng):
     east = np.zeros(t.size)
     north = np.zeros(t.size)
     valid = np.zeros(t.size, np.int64)
-    east[idx] = np.where(ok, x[idx] + err[0], 0.0)
-    north[idx] = np.where(ok, y[idx] + err[1], 0.0)
+    east[idx] = np.where(ok, np.round(x[idx] + err[0], 3), 0.0)
+    north[idx] = np.where(ok, np.round(y[idx] + err[1], 3), 0.0)
     valid[idx] = ok.astype(np.int64)
     return {"fix_east_m": east, "fix_north_m": north, "fix_valid": valid}
 

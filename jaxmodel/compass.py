@@ -12,13 +12,18 @@ MIN_FIELD = 1e-9
 
 
 def deviation(raw_heading, deviation_deg):
-    """Deviation (rad) at raw heading A, periodic linear interpolation of the 36-entry table (FIG. 8A block 4)."""
-    u = jnp.mod(raw_heading, 2.0 * jnp.pi) / deg(360.0 / DEVIATION_TABLE_SIZE)
-    i = jnp.floor(u)
-    w = u - i
-    i0 = jnp.mod(i, DEVIATION_TABLE_SIZE).astype(jnp.int32)
-    i1 = jnp.mod(i + 1, DEVIATION_TABLE_SIZE).astype(jnp.int32)
-    return deg(deviation_deg[i0] * (1.0 - w) + deviation_deg[i1] * w)
+    """Deviation (rad) at raw heading A, periodic linear interpolation of the 36-entry table (FIG. 8A block 4).
+
+    Written as a sum of hat functions rather than a gather: one fused elementwise kernel,
+    measurably cheaper than two gathers inside a vmapped scan on XLA:CPU.
+    """
+    n = DEVIATION_TABLE_SIZE
+    u = jnp.mod(raw_heading, 2.0 * jnp.pi) / deg(360.0 / n)  # in [0, n)
+    nodes = jnp.arange(n, dtype=jnp.float64)
+    distance = jnp.abs(jnp.expand_dims(u, -1) - nodes)
+    distance = jnp.minimum(distance, n - distance)  # periodic
+    weights = jnp.maximum(1.0 - distance, 0.0)
+    return deg(jnp.sum(weights * deviation_deg, axis=-1))
 
 
 def compass_heading(params, compass_x, compass_y):

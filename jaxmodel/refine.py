@@ -44,7 +44,10 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
 
     alpha: wheel heading change of this sample (rad); delta: wrapped H_C - H_W (rad);
     d_t: distance this sample (m); curvature: windowed dD/AD; e_c: compass bound (rad).
+    ``enabled`` is static (Config.refine_a): off, state and a pass through untouched.
     """
+    if not enabled:
+        return rs, a
     turning = jnp.abs(curvature) > params.turn_curvature
     compass_good = compass_ok & (e_c < deg(params.refine_compass_max_error_deg))
     speed_ok = (speed >= params.refine_speed_min) & (speed <= params.refine_speed_max)
@@ -73,7 +76,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     ends = active_now & (straight_run >= params.straight_distance_m)
     mean_shift = safe_div(after_sum, after_weight)  # off_after - off_before
     big_turn = jnp.abs(turn_angle) >= deg(params.refine_turn_min_deg)
-    accept = ends & big_turn & (gates_ok > 0.5) & (after_weight > 0.5 * straight_run) & enabled
+    accept = ends & big_turn & (gates_ok > 0.5) & (after_weight > 0.5 * straight_run)
     error = jnp.where(turn_angle >= 0.0, -mean_shift, mean_shift)  # eq. (11)
     error = jnp.clip(error, -deg(params.refine_M_deg), deg(params.refine_M_deg))  # eq. (12)
     a_new = jnp.where(accept, a + error / params.T_C, a)  # eq. (13)

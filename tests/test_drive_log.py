@@ -439,6 +439,26 @@ def test_mf4_channel_on_another_time_base(tmp_path):
     assert_one_line(info, path, ["'compass_y'", "time base"])
 
 
+def test_mf4_drive_in_a_later_group(tmp_path):
+    """A foreign MDF4: a faster unrelated group first (its master also named time_s), the drive
+    in the second group with a master named 'time'."""
+    from asammdf import MDF, Signal
+
+    cols = synthetic_columns(n=12)
+    fast_t = np.linspace(0.0, 5.0, 37)
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(np.sin(fast_t), fast_t, name="gyro_z", master_metadata=("time_s", 1))], common_timebase=True)
+    mdf.append([Signal(cols[k], cols["time_s"], name=k, master_metadata=("time", 1))
+                for k in cols if k != "time_s"], common_timebase=True)
+    path = tmp_path / "foreign.mf4"
+    mdf.save(path)
+    mdf.close()
+    drive = read_drive(path)
+    assert_same(drive.inputs.time_s, cols["time_s"])
+    assert_same(drive.inputs.left_pulses, cols["left_pulses"].astype(np.float64))
+    assert "gyro_z" not in drive.metadata["columns"]
+
+
 def test_mf4_master_channel_is_time_s(tmp_path):
     from asammdf import MDF
 
@@ -503,11 +523,14 @@ def test_stacked_batch_matches_single_runs():
     drives = [drive_from_columns(synthetic_columns(n=n, seed=n)) for n in (40, 64)]
     inputs, mask = stack_drives(drives)
     batch = jaxmodel.run_batch(params, inputs)
+    assert drives[1].n_samples == inputs.time_s.shape[1]
     for b, d in enumerate(drives):
-        single = jaxmodel.run(params, d.inputs)
+        # one compiled shape: the scan is causal, so the padded row's real part is the drive's run
+        padded_row = jaxmodel.Inputs(*(np.asarray(v)[b] for v in inputs))
+        single = jaxmodel.run(params, padded_row)
         n = d.n_samples
         for k in ("heading", "x", "y", "wheel_heading"):
-            np.testing.assert_allclose(np.asarray(getattr(batch, k))[b, :n], np.asarray(getattr(single, k)),
+            np.testing.assert_allclose(np.asarray(getattr(batch, k))[b, :n], np.asarray(getattr(single, k))[:n],
                                        rtol=0, atol=1e-12, err_msg=k)
         # padding is a standing vehicle: the position does not move
         x, y = np.asarray(batch.x)[b], np.asarray(batch.y)[b]

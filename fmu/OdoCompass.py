@@ -1,0 +1,576 @@
+"""OdoCompass: the odocompass heading estimator as an FMI 2.0 co-simulation slave (pythonfmu).
+
+Build it with ``odocompass build-fmu`` (``fmu/build.py``), not with ``pythonfmu build`` alone:
+the build bundles a private copy of ``jaxmodel`` and the engine into
+``resources/odocompass_bundle/`` and writes ``manifest.json`` there (variables, units,
+descriptions and start values, all taken from ``jaxmodel`` -- ``PARAMETER_TABLE``,
+``Inputs``, ``Outputs``).
+
+Behaviour (docs/fmu.md has the full story):
+
+* Every ``fmi2DoStep(t, h)`` processes ONE sensor sample: the input values present at the call,
+  time-stamped ``t + h`` (the sample taken at the end of the communication interval), through
+  ``jaxmodel.run_from`` -- lowered to Python by ``jaxpr_lower`` or compiled by XLA (parameter
+  ``engine``).  The sample set during initialization mode is processed at the start time in
+  ``fmi2ExitInitializationMode``, so the outputs are valid right after initialization.
+* Bad input (non-finite compass, implausible pulse counters, a zero/negative/non-finite step,
+  time not advancing) is logged under a category and answered with fmi2Discard (pythonfmu
+  0.7.0's ``doStep`` can return only OK or Discard): the sample is not consumed and the
+  estimator state is left exactly as it was.  A counter jump that persists (a counter reset)
+  is accepted on the second consecutive sample the way ``jaxmodel`` handles it (distance
+  dropped, counters re-synchronised), so a stream never stays stuck.
+* Invalid parameters are refused at initialization with a message naming them (category
+  ``logBadParameter``, status fmi2Error); the instance then discards every step and its
+  outputs are NaN.
+* No Python exception ever leaves a callback: pythonfmu turns one into fmi2Fatal and the
+  instance is then unusable (a second call can crash the host).
+* Full state (estimator state vector, outputs, inputs, parameters; floats as ``float.hex``)
+  via ``_get_fmu_state``/``_set_fmu_state``, serializable as JSON.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
+from pythonfmu.default_experiment import DefaultExperiment
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+BUNDLE_DIR = "odocompass_bundle"
+_LOAD_LOCK = threading.Lock()
+_NAN = float("nan")
+
+
+def _private_module(name: str, path: Path):
+    """Import a bundled file under a private module name, once per process."""
+    with _LOAD_LOCK:
+        module = sys.modules.get(name)
+        if module is None:
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            try:
+                spec.loader.exec_module(module)
+            except BaseException:
+                sys.modules.pop(name, None)
+                raise
+        return module
+
+
+class OdoCompass(Fmi2Slave):
+    author = "odocompass"
+    description = ("Dead-reckoning heading estimator (differential odometer + magnetic compass, "
+                   "US 4,788,645 / US 4,734,863): the odocompass jaxmodel step as an FMI 2.0 co-simulation FMU")
+    version = "0.1.0"
+    default_experiment = DefaultExperiment(start_time=0.0, step_size=0.1)
+    log_categories = {
+        "logStatusWarning": "Log messages with fmi2Warning status.",
+        "logStatusDiscard": "Log messages with fmi2Discard status.",
+        "logStatusError": "Log messages with fmi2Error status.",
+        "logStatusFatal": "Log messages with fmi2Fatal status.",
+        "logAll": "Log all messages.",
+        "logBadInput": "Rejected input samples: non-finite compass or position-fix values, implausible pulse counters.",
+        "logBadStep": "Rejected communication steps: zero, negative or non-finite step size, time not advancing.",
+        "logBadParameter": "Parameters or configuration refused at initialization.",
+        "logEngine": "Engine preparation, timing and state save/restore.",
+    }
+
+    # ------------------------------------------------------------------------------------------
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        res = Path(self.resources) if self.resources else Path(__file__).resolve().parent
+        self._bundle = res / BUNDLE_DIR
+        self._manifest = json.loads((self._bundle / "manifest.json").read_text())
+        bid = self._manifest["bundle_id"]
+        self._support = _private_module(f"_odocompass_fmi_support_{bid}", self._bundle / "fmi_support.py")
+        self._engine_module = None
+        self._stepper = None
+        self._prepared_key = None
+        self._phase = "instantiated"  # -> "initialization" -> "stepping"
+        self._refused = None  # message when parameters were refused
+        self._t_start = 0.0
+        self._t_last = -float("inf")
+        self._strikes = 0  # consecutive samples refused for implausible counters
+        self._discarded = 0
+        self._timing: dict[str, float] = {"instantiated": time.perf_counter()}
+
+        m = self._manifest
+        self._x = [0.0] * len(m["sample_fields"])  # one jaxmodel.Inputs sample; slot 0 is time_s
+        self._o = [_NAN] * len(m["outputs"])
+        self._o_stale = False
+        self._s = None  # flat estimator state (list of floats) once prepared
+        self._params = {}  # JSON-style parameter values (jaxmodel.make_params input)
+        self._config = {}
+        self._meta = {}
+        self._real_starts = {}
+        self._real_in, self._int_in, self._bool_in, self._real_out = {}, {}, {}, {}
+        self._real_par, self._string_par, self._bool_par = {}, {}, {}
+        self._out_slot = {o.get("field", o["name"]): o["slot"] for o in m["outputs"]}
+        f = m["sample_fields"]
+        self._i_cx, self._i_cy = f.index("compass_x"), f.index("compass_y")
+        self._i_left, self._i_right = f.index("left_pulses"), f.index("right_pulses")
+        self._i_map, self._i_map_valid = f.index("map_heading"), f.index("map_valid")
+        self._i_fe, self._i_fn, self._i_fix_valid = f.index("fix_east_m"), f.index("fix_north_m"), f.index("fix_valid")
+
+        for spec in m["inputs"]:
+            name, slot, kind = spec["name"], spec["slot"], spec["type"]
+            self._x[slot] = float(spec["start"])
+            common = dict(causality=Fmi2Causality.input, description=spec["description"])
+            if kind == "Integer":
+                var = Integer(name, variability=Fmi2Variability.discrete, start=int(spec["start"]), **common)
+                self._register(var, self._int_in, slot)
+            elif kind == "Boolean":
+                var = Boolean(name, variability=Fmi2Variability.discrete, start=bool(spec["start"]), **common)
+                self._register(var, self._bool_in, slot)
+            else:
+                var = Real(name, variability=Fmi2Variability.continuous, start=float(spec["start"]), **common)
+                self._register(var, self._real_in, slot)
+                self._real_starts[name] = float(spec["start"])
+            self._meta[name] = spec
+
+        for spec in m["outputs"]:
+            var = Real(spec["name"], causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+                       description=spec["description"])
+            self._register(var, self._real_out, spec["slot"])
+            self._meta[spec["name"]] = spec
+        var = Integer("discarded_samples", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+                      description="number of samples refused so far (fmi2Discard, or accepted with a warning when "
+                                  "discard_bad_samples is false)")
+        self._int_out_vr = self._register(var, None, None)
+
+        for spec in m["parameters"]:
+            key, index, kind = spec["key"], spec.get("index"), spec["type"]
+            if index is None:
+                self._params[key] = spec["start"]
+            else:
+                self._params.setdefault(key, [0.0] * spec["size"])[index] = float(spec["start"])
+            common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                          initial=Fmi2Initial.exact, description=spec["description"])
+            if kind == "String":
+                self._register(String(spec["name"], start=str(spec["start"]), **common), self._string_par, key)
+            else:
+                self._register(Real(spec["name"], start=float(spec["start"]), **common), self._real_par, (key, index))
+                self._real_starts[spec["name"]] = float(spec["start"])
+            self._meta[spec["name"]] = spec
+
+        for spec in m["config"]:
+            name = spec["name"]
+            self._config[name] = spec["start"]
+            common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                          initial=Fmi2Initial.exact, description=spec["description"])
+            if spec["type"] == "Boolean":
+                self._register(Boolean(name, start=bool(spec["start"]), **common), self._bool_par, name)
+            else:
+                self._register(String(name, start=str(spec["start"]), **common), self._string_par, ("config", name))
+            self._meta[name] = spec
+
+    def _register(self, var, table, slot):
+        vr = len(self.vars)
+        if table is not None:
+            table[vr] = slot
+        var.getter = lambda vr=vr: self._get_any(vr)
+        var.setter = lambda value, vr=vr: self._set_any(vr, value)
+        self.register_variable(var)
+        return vr
+
+    # ------------------------------------------------------------------------------------------
+    def to_xml(self, model_options=dict()):
+        root = super().to_xml(model_options)
+        return self._support.decorate(root, self._meta, self._real_starts)
+
+    # -- logging --------------------------------------------------------------------------------
+    def _log(self, msg, status=Fmi2Status.ok, category="logAll"):
+        try:
+            self.log(msg, status, category)
+        except Exception:  # pragma: no cover - logging must never raise into the host
+            pass
+
+    def _log_exception(self, where, exc):
+        self._log(f"{where}: unexpected {type(exc).__name__}: {exc}", Fmi2Status.error, "logStatusError")
+
+    # -- value access (never raises) -------------------------------------------------------------
+    def _get_any(self, vr):
+        if vr in self._real_out:
+            if self._o_stale:
+                self._refresh_outputs()
+            return self._o[self._real_out[vr]]
+        if vr in self._real_in:
+            return self._x[self._real_in[vr]]
+        if vr in self._int_in:
+            return int(self._x[self._int_in[vr]])
+        if vr in self._bool_in:
+            return self._x[self._bool_in[vr]] > 0.5
+        if vr in self._real_par:
+            key, index = self._real_par[vr]
+            v = self._params[key]
+            return float(v if index is None else v[index])
+        if vr in self._string_par:
+            ref = self._string_par[vr]
+            return str(self._config[ref[1]] if isinstance(ref, tuple) else self._params[ref])
+        if vr in self._bool_par:
+            return bool(self._config[self._bool_par[vr]])
+        if vr == self._int_out_vr:
+            return self._discarded
+        return None
+
+    def _set_any(self, vr, value):
+        if vr in self._real_in:
+            self._x[self._real_in[vr]] = float(value)
+        elif vr in self._int_in:
+            self._x[self._int_in[vr]] = float(value)
+        elif vr in self._bool_in:
+            self._x[self._bool_in[vr]] = 1.0 if value else 0.0
+        elif vr in self._real_par or vr in self._string_par or vr in self._bool_par:
+            if self._phase == "stepping":
+                self._log(f"parameter {self.vars[vr].name} is fixed after initialization; set ignored",
+                          Fmi2Status.warning, "logBadParameter")
+                return
+            if vr in self._real_par:
+                key, index = self._real_par[vr]
+                if index is None:
+                    self._params[key] = float(value)
+                else:
+                    self._params[key][index] = float(value)
+            elif vr in self._string_par:
+                ref = self._string_par[vr]
+                if isinstance(ref, tuple):
+                    self._config[ref[1]] = str(value)
+                else:
+                    self._params[ref] = str(value)
+            else:
+                self._config[self._bool_par[vr]] = bool(value)
+            self._stepper = None
+        else:
+            self._log(f"variable {vr} cannot be set", Fmi2Status.warning, "logStatusWarning")
+            return
+        if self._phase == "initialization":
+            self._o_stale = True
+
+    def get_real(self, vrs):
+        if self._o_stale:
+            self._refresh_outputs()
+        o, m = self._o, self._real_out
+        try:
+            return [o[m[vr]] for vr in vrs]
+        except KeyError:
+            pass
+        except Exception as exc:
+            self._log_exception("fmi2GetReal", exc)
+            return [_NAN] * len(vrs)
+        out = []
+        for vr in vrs:
+            try:
+                v = self._get_any(vr)
+                out.append(float(v) if isinstance(v, (int, float)) else _NAN)
+            except Exception as exc:
+                self._log_exception("fmi2GetReal", exc)
+                out.append(_NAN)
+        return out
+
+    def set_real(self, vrs, values):
+        m, x = self._real_in, self._x
+        for vr, value in zip(vrs, values):
+            slot = m.get(vr)
+            if slot is not None:
+                x[slot] = value
+            else:
+                try:
+                    self._set_any(vr, value)
+                except Exception as exc:
+                    self._log_exception("fmi2SetReal", exc)
+        if self._phase == "initialization":
+            self._o_stale = True
+
+    def set_integer(self, vrs, values):
+        m, x = self._int_in, self._x
+        for vr, value in zip(vrs, values):
+            slot = m.get(vr)
+            if slot is not None:
+                x[slot] = float(value)
+            else:
+                try:
+                    self._set_any(vr, value)
+                except Exception as exc:
+                    self._log_exception("fmi2SetInteger", exc)
+        if self._phase == "initialization":
+            self._o_stale = True
+
+    def get_integer(self, vrs):
+        out = []
+        for vr in vrs:
+            try:
+                v = self._get_any(vr)
+                out.append(int(v) if isinstance(v, (int, float, bool)) and v == v else 0)
+            except Exception as exc:
+                self._log_exception("fmi2GetInteger", exc)
+                out.append(0)
+        return out
+
+    def set_boolean(self, vrs, values):
+        for vr, value in zip(vrs, values):
+            try:
+                self._set_any(vr, value)
+            except Exception as exc:
+                self._log_exception("fmi2SetBoolean", exc)
+
+    def get_boolean(self, vrs):
+        out = []
+        for vr in vrs:
+            try:
+                out.append(bool(self._get_any(vr)))
+            except Exception as exc:
+                self._log_exception("fmi2GetBoolean", exc)
+                out.append(False)
+        return out
+
+    def set_string(self, vrs, values):
+        for vr, value in zip(vrs, values):
+            try:
+                self._set_any(vr, value)
+            except Exception as exc:
+                self._log_exception("fmi2SetString", exc)
+
+    def get_string(self, vrs):
+        out = []
+        for vr in vrs:
+            try:
+                v = self._get_any(vr)
+                out.append("" if v is None else str(v))
+            except Exception as exc:
+                self._log_exception("fmi2GetString", exc)
+                out.append("")
+        return out
+
+    # -- engine ---------------------------------------------------------------------------------
+    def _engine(self):
+        if self._engine_module is None:
+            bid = self._manifest["bundle_id"]
+            mod = _private_module(f"_odocompass_engine_{bid}", self._bundle / "engine.py")
+            self._engine_module = mod
+        return self._engine_module.get_engine(self._bundle, self._manifest["bundle_id"])
+
+    def _config_for_engine(self):
+        c = self._config
+        return {"mode": c.get("mode"), "refine_a": c.get("refine_a"), "calibration": c.get("calibration"),
+                "track": c.get("track")}
+
+    def _prepare(self):
+        """Stepper for the current parameters (None, with self._refused set, when they are refused)."""
+        key = json.dumps([self._params, self._config], sort_keys=True, default=str)
+        if self._stepper is not None and key == self._prepared_key:
+            return self._stepper
+        self._stepper = None
+        engine = self._engine()
+        t0 = time.perf_counter()
+        try:
+            stepper = engine.prepare(dict(self._params), self._config_for_engine(), str(self._config.get("engine")),
+                                     native_dir=self._bundle, native=self._manifest.get("native", []))
+        except self._engine_module.ConfigurationError as exc:
+            self._refused = f"parameters refused: {exc}"
+            self._log(self._refused, Fmi2Status.error, "logBadParameter")
+            return None
+        self._refused = None
+        self._stepper = stepper
+        self._prepared_key = key
+        self._timing["prepare_s"] = time.perf_counter() - t0
+        names = engine.layout["state"]
+        self._i_started = names.index("started")
+        self._i_last_left = names.index("last_left")
+        self._i_last_right = names.index("last_right")
+        self._i_odo_valid = self._out_slot["odometer_valid"]
+        self._log(f"engine {stepper.kind} ready in {self._timing['prepare_s']:.3f} s"
+                  + (f" ({stepper.note})" if stepper.note else ""), Fmi2Status.ok, "logEngine")
+        return stepper
+
+    def _first_sample(self):
+        """Outputs of the initial sample (time = start time) from the initial state: (state, outputs)."""
+        stepper = self._prepare()
+        if stepper is None:
+            return None, [_NAN] * len(self._o)
+        x = list(self._x)
+        x[0] = self._t_start
+        return stepper.step(list(stepper.s0), x)
+
+    def _refresh_outputs(self):
+        self._o_stale = False
+        try:
+            _, self._o = self._first_sample()
+        except Exception as exc:
+            self._log_exception("initial outputs", exc)
+            self._o = [_NAN] * len(self._o)
+
+    # -- FMI life cycle ---------------------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        try:
+            self._t_start = float(start_time)
+        except Exception as exc:
+            self._log_exception("fmi2SetupExperiment", exc)
+
+    def enter_initialization_mode(self):
+        self._phase = "initialization"
+        self._o_stale = True
+
+    def exit_initialization_mode(self):
+        try:
+            self._o_stale = False
+            s, o = self._first_sample()
+            self._phase = "stepping"
+            self._o = o
+            self._s = s
+            self._t_last = self._t_start
+            self._strikes = 0
+            if s is not None:
+                cx, cy = self._x[self._i_cx], self._x[self._i_cy]
+                if not (cx - cx == 0.0 and cy - cy == 0.0):
+                    self._log(f"initial sample: non-finite compass reading (compass_x={cx!r}, compass_y={cy!r}); "
+                              "the estimator skips it", Fmi2Status.warning, "logBadInput")
+            self._timing["initialized"] = time.perf_counter()
+        except Exception as exc:
+            self._phase = "stepping"
+            self._refused = f"initialization failed: {type(exc).__name__}: {exc}"
+            self._log(self._refused, Fmi2Status.error, "logStatusError")
+            self._o = [_NAN] * len(self._o)
+
+    def terminate(self):
+        pass
+
+    # -- stepping -------------------------------------------------------------------------------
+    def do_step(self, current_time, step_size):
+        try:
+            return self._do_step(current_time, step_size)
+        except Exception as exc:  # never let an exception reach pythonfmu (it would be fmi2Fatal)
+            self._log_exception(f"fmi2DoStep at t={current_time!r}", exc)
+            return False
+
+    def _do_step(self, t, h):
+        if self._s is None:
+            if self._refused is None:
+                self._refused = "fmi2DoStep before initialization"
+            self._log(f"step refused: {self._refused}", Fmi2Status.error, "logBadParameter")
+            return False
+        if not (0.0 < h < float("inf")):
+            self._log(f"communication step size h={h!r} at t={t!r} s: must be positive and finite; step discarded, "
+                      "estimator state unchanged", Fmi2Status.discard, "logBadStep")
+            return False
+        t_sample = t + h
+        if not (t_sample > self._t_last) or t_sample != t_sample:
+            self._log(f"sample time t+h={t_sample!r} s does not advance past the last sample ({self._t_last!r} s); "
+                      "step discarded, estimator state unchanged", Fmi2Status.discard, "logBadStep")
+            return False
+        x = self._x
+        x[0] = t_sample
+        problem = None
+        cx, cy = x[self._i_cx], x[self._i_cy]
+        if not (cx - cx == 0.0 and cy - cy == 0.0):
+            problem = f"non-finite compass reading (compass_x={cx!r}, compass_y={cy!r})"
+        elif x[self._i_map_valid] > 0.5 or x[self._i_fix_valid] > 0.5:
+            mh, fe, fn = x[self._i_map], x[self._i_fe], x[self._i_fn]
+            if (x[self._i_map_valid] > 0.5 and not mh - mh == 0.0) or \
+                    (x[self._i_fix_valid] > 0.5 and not fe - fe + fn - fn == 0.0):
+                problem = (f"non-finite map heading or position fix flagged valid (map_heading={mh!r}, "
+                           f"fix_east_m={fe!r}, fix_north_m={fn!r})")
+        discard = bool(self._config.get("discard_bad_samples", True))
+        if problem is not None and discard:
+            return self._refuse(problem, t_sample)
+        s_new, o = self._stepper.step(self._s, x)
+        if o[self._i_odo_valid] == 0.0 and self._s[self._i_started] > 0.5:
+            # jaxmodel's own plausibility check refused the counters (a jump beyond max_speed)
+            counters = self._counter_message(t_sample)
+            if self._strikes == 0 and problem is None:
+                self._strikes = 1
+                if discard:
+                    return self._refuse(counters, t_sample)
+                problem = counters
+            else:
+                self._strikes = 0
+                self._log(f"{counters}, again: accepted as a counter reset at t={t_sample!r} s (that sample's "
+                          "distance dropped, counters re-synchronised)", Fmi2Status.warning, "logBadInput")
+        else:
+            self._strikes = 0
+        if problem is not None:
+            self._discarded += 1
+            self._log(f"{problem} at t={t_sample!r} s: passed to the estimator, which skips what is unusable "
+                      "(discard_bad_samples=false)", Fmi2Status.warning, "logBadInput")
+        self._s = s_new
+        self._o = o
+        self._t_last = t_sample
+        if "first_step" not in self._timing:
+            self._timing["first_step"] = time.perf_counter()
+        return True
+
+    def _refuse(self, problem, t_sample):
+        self._discarded += 1
+        self._log(f"{problem} at t={t_sample!r} s: sample discarded (fmi2Discard), estimator state unchanged",
+                  Fmi2Status.discard, "logBadInput")
+        return False
+
+    def _counter_message(self, t_sample):
+        mod = float(self._params.get("counter_modulus", 65536.0))
+        parts = []
+        for name, slot, i_last in (("left", self._i_left, self._i_last_left),
+                                   ("right", self._i_right, self._i_last_right)):
+            d = self._x[slot] - self._s[i_last]
+            d -= mod * round(d / mod)
+            parts.append(f"{name} {d:+.0f}")
+        return (f"implausible pulse counter jump ({', '.join(parts)} counts in {t_sample - self._t_last:.6g} s, "
+                f"beyond max_speed={self._params.get('max_speed')} m/s)")
+
+    # -- FMU state ------------------------------------------------------------------------------
+    def _get_fmu_state(self):
+        sup = self._support
+        params = {k: (sup.floats_to_text(v) if isinstance(v, list) else
+                      (sup.float_to_text(v) if isinstance(v, float) else v)) for k, v in self._params.items()}
+        return {
+            "format": "odocompass-fmu-state/1",
+            "bundle_id": self._manifest["bundle_id"],
+            "phase": self._phase,
+            "params": params,
+            "config": dict(self._config),
+            "t_start": sup.float_to_text(self._t_start),
+            "t_last": sup.float_to_text(self._t_last),
+            "s": None if self._s is None else sup.floats_to_text(self._s),
+            "o": sup.floats_to_text(self._o),
+            "x": sup.floats_to_text(self._x),
+            "strikes": self._strikes,
+            "discarded": self._discarded,
+            "refused": self._refused,
+        }
+
+    def _set_fmu_state(self, state):
+        try:
+            sup = self._support
+            if state.get("format") != "odocompass-fmu-state/1":
+                raise ValueError(f"not an OdoCompass FMU state: format {state.get('format')!r}")
+            params = {}
+            for k, v in state["params"].items():
+                if isinstance(v, list):
+                    params[k] = sup.text_to_floats(v)
+                elif k in ("sensor_axle",):
+                    params[k] = v
+                else:
+                    params[k] = sup.text_to_float(v) if isinstance(v, str) else v
+            self._params = params
+            self._config = dict(state["config"])
+            self._t_start = sup.text_to_float(state["t_start"])
+            self._t_last = sup.text_to_float(state["t_last"])
+            self._o = sup.text_to_floats(state["o"])
+            self._x = sup.text_to_floats(state["x"])
+            self._strikes = int(state["strikes"])
+            self._discarded = int(state["discarded"])
+            self._phase = state["phase"]
+            self._o_stale = False
+            self._refused = state.get("refused")
+            if state["s"] is None:
+                self._s = None
+            else:
+                if self._prepare() is None:
+                    self._s = None
+                    return
+                self._s = sup.text_to_floats(state["s"])
+        except Exception as exc:
+            self._log_exception("fmi2SetFMUstate", exc)

@@ -1,0 +1,138 @@
+"""FMI 2.0 plumbing shared by the project's pythonfmu slaves (bundled into each FMU's resources).
+
+pythonfmu 0.7.0 writes neither units nor ``ModelStructure/InitialUnknowns``, and it writes Real
+start values with 16 significant digits (not always the exact float64).  ``decorate`` fixes the
+model description a slave's ``to_xml`` returns: ``UnitDefinitions`` (SI base-unit exponents,
+display units such as deg for rad), a ``unit`` on every Real variable, ``InitialUnknowns`` for
+every output, and round-trip exact start values.  With it ``fmpy validate`` finds no problems.
+
+Self-contained (stdlib only): loaded by the slaves under a private module name.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Mapping
+from xml.etree.ElementTree import Element, SubElement
+
+# unit name -> (base-unit exponents, factor, offset, display units [(name, factor, offset)])
+# FMI 2.0: value_in_base_units = factor * value + offset; display = factor * value + offset.
+UNITS: dict[str, tuple[dict[str, int], float, float, list[tuple[str, float, float]]]] = {
+    "1": ({}, 1.0, 0.0, []),
+    "rad": ({"rad": 1}, 1.0, 0.0, [("deg", 180.0 / math.pi, 0.0)]),
+    "deg": ({"rad": 1}, math.pi / 180.0, 0.0, []),
+    "rad/s": ({"rad": 1, "s": -1}, 1.0, 0.0, [("deg/s", 180.0 / math.pi, 0.0)]),
+    "m": ({"m": 1}, 1.0, 0.0, [("km", 0.001, 0.0)]),
+    "s": ({"s": 1}, 1.0, 0.0, []),
+    "m/s": ({"m": 1, "s": -1}, 1.0, 0.0, [("km/h", 3.6, 0.0)]),
+    "s2/m2": ({"m": -2, "s": 2}, 1.0, 0.0, []),
+    "rad.m2/s2": ({"rad": 1, "m": 2, "s": -2}, 1.0, 0.0, []),
+    "1/rad2": ({"rad": -2}, 1.0, 0.0, []),
+    "1/m": ({"m": -1}, 1.0, 0.0, []),
+    "uT": ({"kg": 1, "A": -1, "s": -2}, 1e-6, 0.0, []),
+    "1/km2": ({"m": -2}, 1e-6, 0.0, []),
+    "1/s": ({"s": -1}, 1.0, 0.0, []),
+    # "compass": the compass's own unit (any one unit, µT typical; SPEC §1): no SI base given.
+}
+
+
+def exact(x: float) -> str:
+    """Shortest text that reads back as the same float64 (XML start values)."""
+    x = float(x)
+    if math.isnan(x):
+        return "NaN"
+    if math.isinf(x):
+        return "INF" if x > 0 else "-INF"
+    return repr(x)
+
+
+def decorate(root: Element, meta: Mapping[str, Mapping[str, Any]], real_starts: Mapping[str, float]) -> Element:
+    """Add units, display units, InitialUnknowns and exact Real starts to a pythonfmu model description.
+
+    ``meta`` maps a variable name to at least ``unit`` (Real variables) and optionally
+    ``display_unit``, ``min``, ``max``, ``nominal``; ``real_starts`` maps names to exact start values.
+    """
+    variables = root.find("ModelVariables")
+    used_units: list[str] = []
+    outputs: list[int] = []
+    for index, sv in enumerate(variables.findall("ScalarVariable"), start=1):
+        name = sv.get("name")
+        m = meta.get(name, {})
+        real = sv.find("Real")
+        if real is not None:
+            unit = m.get("unit") or "1"
+            real.set("unit", unit)
+            if unit not in used_units:
+                used_units.append(unit)
+            if m.get("display_unit"):
+                real.set("displayUnit", m["display_unit"])
+            for attr in ("min", "max", "nominal"):
+                if m.get(attr) is not None:
+                    real.set(attr, exact(m[attr]))
+            if name in real_starts and real.get("start") is not None:
+                real.set("start", exact(real_starts[name]))
+        if sv.get("causality") == "output":
+            outputs.append(index)
+
+    units = Element("UnitDefinitions")
+    for unit in used_units:
+        u = SubElement(units, "Unit", name=unit)
+        spec = UNITS.get(unit)
+        if spec is None:
+            continue  # a unit of its own (e.g. "compass"): named, no SI base
+        exponents, factor, offset, display = spec
+        attrs = {k: str(v) for k, v in exponents.items()}
+        if factor != 1.0:
+            attrs["factor"] = exact(factor)
+        if offset != 0.0:
+            attrs["offset"] = exact(offset)
+        SubElement(u, "BaseUnit", attrs)
+        for dname, dfactor, doffset in display:
+            d = {"name": dname}
+            if dfactor != 1.0:
+                d["factor"] = exact(dfactor)
+            if doffset != 0.0:
+                d["offset"] = exact(doffset)
+            SubElement(u, "DisplayUnit", d)
+    # FMI 2.0 order: CoSimulation, UnitDefinitions, TypeDefinitions, LogCategories, DefaultExperiment, ...
+    children = list(root)
+    position = next((i + 1 for i, c in enumerate(children) if c.tag in ("CoSimulation", "ModelExchange")), 0)
+    root.insert(position, units)
+
+    structure = root.find("ModelStructure")
+    for tag in ("Outputs", "InitialUnknowns"):
+        old = structure.find(tag)
+        if old is not None:
+            structure.remove(old)
+    if outputs:
+        out = SubElement(structure, "Outputs")
+        for i in outputs:
+            SubElement(out, "Unknown", index=str(i))
+        init = SubElement(structure, "InitialUnknowns")
+        for i in outputs:
+            SubElement(init, "Unknown", index=str(i))
+    return root
+
+
+def float_to_text(x: float) -> str:
+    """Exact, JSON-safe text of a float64 (``float.hex``; NaN and infinities spelled out)."""
+    x = float(x)
+    if x != x:
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return x.hex()
+
+
+def text_to_float(s: str) -> float:
+    if s in ("nan", "inf", "-inf"):
+        return float(s)
+    return float.fromhex(s)
+
+
+def floats_to_text(values: Iterable[float]) -> list[str]:
+    return [float_to_text(v) for v in values]
+
+
+def text_to_floats(values: Iterable[str]) -> list[float]:
+    return [text_to_float(v) for v in values]

@@ -1,0 +1,146 @@
+"""PNG plots of an identification (matplotlib, Agg backend): heading error before/after, the
+effective track T_E against curvature before/after, and the loss curve."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _name(drive) -> str:
+    p = str(drive.metadata.get("path", "<columns>")) if getattr(drive, "metadata", None) else "<columns>"
+    return Path(p).name if "/" in p else p
+
+
+def heading_error_plot(path: Path, ev_before, ev_after, drives, roles, mode: str) -> Path:
+    plt = _plt()
+    field = "wheel_heading" if mode == "odometer" else "heading"
+    label = "odometer-only heading" if mode == "odometer" else f"{mode} heading"
+    n = len(drives)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n + 0.6), squeeze=False, sharex=False)
+    for b in range(n):
+        ax = axes[b, 0]
+        w = ev_before["weight"][b] > 0
+        t = ev_before["time_s"][b]
+        t = t - t[0]
+        for ev, tag, color in ((ev_before, "before", "tab:red"), (ev_after, "after", "tab:blue")):
+            e = np.degrees(np.angle(np.exp(1j * (ev[field][b] - ev["ref"][b]))))
+            rms = np.sqrt(np.mean(e[w] ** 2)) if np.any(w) else float("nan")
+            ax.plot(t[w], e[w], color=color, lw=0.8, label=f"{tag} (RMSE {rms:.2f}°)")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_ylabel("error, deg")
+        ax.set_title(f"{roles[b]}: {_name(drives[b])}", fontsize=9)
+        ax.legend(loc="upper left", fontsize=8)
+    axes[-1, 0].set_xlabel("time, s")
+    fig.suptitle(f"{label} error against the reference, before and after identification", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _empirical_track(ev, drives, params, n_train: int, bins):
+    """Track implied by the data per |curvature| bin: sum s dD / sum s dpsi_ref (1 + a V²), s = sign of the
+    curvature (reference noise averages out instead of adding up)."""
+    dD_all, dpsi_all, c_all = [], [], []
+    for b in range(n_train):
+        inp = drives[b].inputs
+        n = len(np.asarray(inp.time_s))
+        mod = float(params.counter_modulus)
+
+        def inc(x):
+            d = np.diff(np.asarray(x, dtype=np.float64))
+            return d - mod * np.round(d / mod)
+
+        dl = inc(inp.left_pulses) * float(params.dpp_left)
+        dr = inc(inp.right_pulses) * float(params.dpp_right)
+        dD = dl - dr
+        ref = ev["ref"][b][:n]
+        dpsi = np.angle(np.exp(1j * np.diff(ref)))
+        v = ev["speed"][b][1:n]
+        a = ev["a"][b][1:n]
+        w = (ev["weight"][b][1:n] > 0) & (ev["weight"][b][:n - 1] > 0)
+        dD_all.append(dD[w])
+        dpsi_all.append(dpsi[w] * (1.0 + a[w] * v[w] ** 2))
+        c_all.append(ev["curvature"][b][1:n][w])
+    dD, dpsi, c = (np.concatenate(x) if x else np.zeros(0) for x in (dD_all, dpsi_all, c_all))
+    centers, values = [], []
+    sign = np.sign(c)
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        sel = (np.abs(c) >= lo) & (np.abs(c) < hi)
+        den = np.sum(sign[sel] * dpsi[sel])
+        if sel.sum() > 50 and den > np.radians(90.0):
+            centers.append(0.5 * (lo + hi))
+            values.append(np.sum(sign[sel] * dD[sel]) / den)
+    return np.array(centers), np.array(values), np.abs(c)
+
+
+def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Path:
+    from jaxmodel.track import effective_track, max_curvature
+
+    plt = _plt()
+    fig, (ax, axh) = plt.subplots(2, 1, figsize=(8, 6.5), gridspec_kw={"height_ratios": [3, 1]}, sharex=True)
+    c_max = 0.98 * float(max_curvature(fitted.B, fitted.T_F))
+    c = np.linspace(0.0, c_max, 300)
+    for p, tag, color in ((start, "before (start file)", "tab:red"), (fitted, "after (fitted)", "tab:blue")):
+        if float(p.sensor_axle) >= 0.5:
+            te = np.asarray(effective_track(c, p.P, p.B, p.T_F, p.curvature_clip))
+        else:
+            te = np.full_like(c, float(p.T_R))
+        ax.plot(c, te, color=color, label=tag)
+    bins = np.linspace(0.0, c_max, 15)
+    centers, values, c_data = _empirical_track(ev_after, drives, fitted, n_train, bins)
+    if centers.size:
+        ax.plot(centers, values, "ko", ms=4, label="implied by the training data (binned)")
+    ax.set_ylabel("effective track T_E, m")
+    ax.set_title("US 4,788,645 eq. (14): effective track against curvature dD/AD", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    if c_data.size:
+        axh.hist(c_data, bins=60, range=(0.0, c_max), color="0.5")
+        axh.set_yscale("log")
+    axh.set_xlabel("|curvature| dD/AD (windowed)")
+    axh.set_ylabel("samples")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def loss_plot(path: Path, stage_reports) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for st in stage_reports:
+        h = np.asarray(st["loss_history"], dtype=np.float64)
+        if h.size:
+            ax.plot(np.arange(h.size), h - h.min() + 1e-9, marker=".", label=f"{st['name']}: {','.join(st['keys'])}")
+    ax.set_yscale("log")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("MAP objective - final value (nats)")
+    ax.set_title("identification loss curve", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_all(out_dir: Path, ev_before, ev_after, drives, roles, start, fitted, stage_reports, mode, n_train):
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [
+        heading_error_plot(out_dir / "heading_error.png", ev_before, ev_after, drives, roles, mode),
+        track_plot(out_dir / "effective_track.png", start, fitted, ev_after, drives, n_train),
+        loss_plot(out_dir / "loss.png", stage_reports),
+    ]
