@@ -186,7 +186,8 @@ class OdoCompass(Fmi2Slave):
     # -- logging --------------------------------------------------------------------------------
     def _log(self, msg, status=Fmi2Status.ok, category="logAll"):
         try:
-            self.log(msg, status, category)
+            # pythonfmu hands the text to the host's logger as its printf format: escape '%'
+            self.log(str(msg).replace("%", "%%"), status, category)
         except Exception:  # pragma: no cover - logging must never raise into the host
             pass
 

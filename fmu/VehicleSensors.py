@@ -92,6 +92,8 @@ class VehicleSensors(Fmi2Slave):
                      "true_speed": 0.0, "yaw_rate": 0.0, "distance": 0.0}
         self._model = None
         self._kin = None  # kinematic state: x, y, heading (unwrapped), wheel distances, speed, time
+        self._lock = None
+        self._clamp_logged = False
 
         for spec in self._manifest["inputs"]:
             name = spec["name"]
@@ -128,7 +130,8 @@ class VehicleSensors(Fmi2Slave):
 
     def _log(self, msg, status=Fmi2Status.ok, category="logAll"):
         try:
-            self.log(msg, status, category)
+            # pythonfmu hands the text to the host's logger as its printf format: escape '%'
+            self.log(str(msg).replace("%", "%%"), status, category)
         except Exception:  # pragma: no cover
             pass
 
@@ -195,6 +198,9 @@ class VehicleSensors(Fmi2Slave):
         p = self._p
         true_params = {k: p[k] for k in ("dpp_left", "dpp_right", "counter_modulus", "field_magnitude",
                                          "variation_deg", "rotation_deg", "X0", "Y0")}
+        deviation = [float(p[f"deviation_deg_{i}"]) for i in range(36) if f"deviation_deg_{i}" in p]
+        if len(deviation) == 36 and any(deviation):
+            true_params["deviation_deg"] = deviation
         slip = None if p["slip"] else sensors.SlipModel(sigma_rel=0.0, white_m=0.0)
         self._model = sensors.SensorModel.from_params(
             true_params, seed=int(p["seed"]), compass_noise_ut=float(p["compass_noise_ut"]), slip=slip,
@@ -260,7 +266,14 @@ class VehicleSensors(Fmi2Slave):
         sensors = self._sensors()
         p, k = self._p, self._kin
         B = float(p["B"])
-        delta = max(-1.2, min(1.2, delta))  # |δ| < ~69°: beyond any car's lock
+        delta_max = self._delta_max(sensors)
+        if abs(delta) > delta_max:
+            if not self._clamp_logged:
+                self._log(f"steering_angle {delta!r} rad at t={t!r} beyond the vehicle's lock ({delta_max:.4f} rad, "
+                          "where the wheel model's curvature ends); clamped (logged once)", Fmi2Status.warning,
+                          "logBadInput")
+                self._clamp_logged = True
+            delta = math.copysign(delta_max, delta)
         curv = math.tan(delta) / B  # dψ/ds of the rear axle's centre, 1/m
         s = v * h
         d_heading = curv * s
@@ -286,6 +299,16 @@ class VehicleSensors(Fmi2Slave):
         self._sense(h, pitch, roll)
         self._out["yaw_rate"] = d_heading / h
         return True
+
+    def _delta_max(self, sensors):
+        """Steering lock: 90 % of the largest ΔD/AD the seed's wheel model (eq. 14) covers, as the simulator."""
+        if self._lock is None:
+            p = self._p
+            B, T_F, T_R, P = float(p["B"]), float(p["T_F"]), float(p["T_R"]), float(p["P"])
+            c = 0.9 * sensors.max_curvature(B, T_F)
+            kappa = min(c / T_R, c / float(sensors.effective_track(c, P, B, T_F)))
+            self._lock = math.atan(kappa * B)
+        return self._lock
 
     # -- state ----------------------------------------------------------------------------------------
     def _get_fmu_state(self):

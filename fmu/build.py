@@ -110,7 +110,7 @@ CONFIG_META = (
 )
 
 VEHICLE_TRUE_KEYS = ("sensor_axle", "P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right", "counter_modulus",
-                     "field_magnitude", "variation_deg", "X0", "Y0", "rotation_deg")
+                     "field_magnitude", "variation_deg", "X0", "Y0", "rotation_deg", "deviation_deg")
 VEHICLE_EXTRA = (
     # name, type, unit, start, description
     ("seed", "Integer", None, 0, "random seed of the sensor error models"),
@@ -154,15 +154,22 @@ def _params_dict(params) -> dict[str, Any]:
     _jax64()
     import jaxmodel
 
+    source = "built-in defaults"
     if params is None:
         p = jaxmodel.make_params()
     elif isinstance(params, (str, Path)):
         p, _ = jaxmodel.load_params(params)
+        source = str(params)
     elif isinstance(params, Mapping):
         p = jaxmodel.make_params(dict(params))
+        source = "given parameters"
     else:
         p = params
-    jaxmodel.validate_params(p)
+        source = "given parameters"
+    try:
+        jaxmodel.validate_params(p)
+    except jaxmodel.ParameterError as exc:
+        raise jaxmodel.ParameterError(f"{source}: {exc}") from None
     return jaxmodel.params_to_dict(p)
 
 
@@ -217,6 +224,10 @@ def vehicle_manifest(values: Mapping[str, Any]) -> dict[str, Any]:
         unit = "uT" if spec.unit == "compass" else (spec.unit or "1")
         if key == "sensor_axle":
             params.append(dict(name=key, type="String", start=values[key], description="true " + spec.description))
+        elif isinstance(values[key], (list, tuple)):
+            for i, v in enumerate(values[key]):
+                params.append(dict(name=f"{key}_{i}", type="Real", unit=unit, start=float(v),
+                                   description=f"true value: {spec.description} [entry {i}]"))
         else:
             params.append(dict(name=key, type="Real", unit=unit, start=float(values[key]),
                                description="true value: " + spec.description))

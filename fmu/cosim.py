@@ -215,44 +215,46 @@ def replay(fmu_path: str | Path, columns: Mapping[str, Sequence[float]], paramet
 # ----------------------------------------------------------------------------------------------
 # Vehicle -> estimator co-simulation
 # ----------------------------------------------------------------------------------------------
-def demo_profile(t: float) -> tuple[float, float]:
-    """A scripted drive (steering angle rad, speed m/s) of ~10 minutes, repeating afterwards.
+# Knots of the scripted drive: (time s, speed m/s) and (time s, road-wheel steering angle rad, + right).
+# Lateral accelerations stay below ~3.5 m/s² and curvatures below what the seed's wheel model covers.
+_SPEED_KNOTS = (
+    (0, 0), (8, 12), (25, 12), (29, 6), (35, 6), (39, 12), (55, 12), (59, 6), (65, 6), (69, 12),      # town
+    (88, 12), (95, 0), (102, 0), (110, 12), (115, 7), (142, 7), (147, 12), (183, 12), (187, 6),
+    (195, 6), (200, 12), (240, 12), (255, 22), (330, 22), (345, 32), (470, 32), (480, 15),             # country, motorway
+    (505, 15), (515, 3), (548, 3), (552, 0), (556, 0), (560, -1.5), (575, -1.5), (579, 0), (600, 0),   # ramp, parking
+)
+_STEER_KNOTS = (
+    (0, 0), (30, 0), (31, 0.175), (33.6, 0.175), (34.6, 0),             # right turn at 6 m/s
+    (60, 0), (61, -0.175), (63.6, -0.175), (64.6, 0),                   # left turn
+    (116, 0), (117, 0.08), (118.5, 0.08), (119.5, -0.178), (129.6, -0.178), (130.6, 0.08), (132, 0.08), (133, 0),  # roundabout
+    (160, 0), (163, 0.03), (168, 0.03), (171, 0),                       # a bend
+    (190, 0), (191, 0.175), (193.6, 0.175), (194.6, 0),                 # right turn
+    (205, 0), (208, -0.01), (214, 0.01), (220, 0),                      # weaving
+    (482, 0), (485, 0.045), (501, 0.045), (504, 0),                     # exit loop (270°)
+    (518, 0), (519, 0.3), (523, 0.3), (524, 0),                         # into the car park
+    (561, 0), (562, -0.35), (572, -0.35), (573, 0), (600, 0),           # reversing into a space
+)
 
-    Town driving with right and left turns, a roundabout, stops, a country road with bends, a
-    motorway stretch with a lane change, and a parking manoeuvre that reverses.
+
+def demo_profile(t: float) -> tuple[float, float]:
+    """A scripted 10-minute drive, (steering angle rad, speed m/s) at time t (repeats every 600 s).
+
+    Town driving with right and left turns at 6 m/s, a stop, a roundabout, a country road with
+    bends (22 m/s), a motorway with a long curve and a lane change (32 m/s), an exit loop, and a
+    car park with a reversing manoeuvre.
     """
     t = t % 600.0
-
-    def ramp(x, x0, x1):
-        return min(1.0, max(0.0, (x - x0) / (x1 - x0)))
-
-    def bump(x, start, dur, rise=1.5):
-        return ramp(x, start, start + rise) * (1.0 - ramp(x, start + dur - rise, start + dur))
-
-    # speed: accelerate, town 12 m/s, stop at 95-105 s, country 22 m/s, motorway 32 m/s, slow down, park
-    if t < 240.0:
-        v = 12.0 * ramp(t, 0.0, 8.0) * (1.0 - bump(t, 92.0, 16.0, 4.0))
-    elif t < 330.0:
-        v = 12.0 + 10.0 * ramp(t, 240.0, 255.0)
-    elif t < 480.0:
-        v = 22.0 + 10.0 * ramp(t, 330.0, 345.0) - 10.0 * ramp(t, 465.0, 480.0)
-    elif t < 560.0:
-        v = 22.0 - 19.0 * ramp(t, 480.0, 500.0)
-    else:
-        v = 3.0 - 5.0 * ramp(t, 565.0, 570.0) * (1.0 - ramp(t, 588.0, 592.0))  # reverse into a space
-    # steering (road-wheel angle, + right)
-    s = 0.0
-    s += 0.12 * bump(t, 30.0, 9.0)      # right turn (~90°)
-    s -= 0.12 * bump(t, 60.0, 9.0)      # left turn
-    s += 0.10 * bump(t, 120.0, 22.0)    # roundabout (right-hand circulation, almost a full circle)
-    s -= 0.05 * bump(t, 150.0, 5.0)
-    s += 0.13 * bump(t, 190.0, 9.0)
-    s += 0.025 * math.sin(2.0 * math.pi * (t - 250.0) / 40.0) if 250.0 < t < 330.0 else 0.0  # country bends
-    s += 0.006 * bump(t, 400.0, 4.0, 1.0) - 0.006 * bump(t, 405.0, 4.0, 1.0)                # lane change
-    s += 0.05 * bump(t, 500.0, 12.0)
-    s -= 0.35 * bump(t, 540.0, 8.0)     # into the car park
-    s += 0.45 * bump(t, 566.0, 10.0)    # reversing into a space
-    return s, v
+    steer = float(np.interp(t, [k[0] for k in _STEER_KNOTS], [k[1] for k in _STEER_KNOTS]))
+    speed = float(np.interp(t, [k[0] for k in _SPEED_KNOTS], [k[1] for k in _SPEED_KNOTS]))
+    if 245.0 < t < 330.0:
+        steer += 0.0108 * math.sin(2.0 * math.pi * (t - 245.0) / 40.0)   # country bends, R >= 250 m
+    if 360.0 < t < 380.0:
+        steer += 0.0054 * min(1.0, (t - 360.0) / 4.0, (380.0 - t) / 4.0)  # motorway curves, R = 500 m, ~45° each
+    if 440.0 < t < 460.0:
+        steer -= 0.0054 * min(1.0, (t - 440.0) / 4.0, (460.0 - t) / 4.0)
+    if 420.0 < t < 426.0:
+        steer += 0.003 * (1.0 if t < 423.0 else -1.0)                     # lane change
+    return steer, speed
 
 
 @dataclass
@@ -326,7 +328,10 @@ def run_ssp(ssp_path: str | Path, stop_time: float = 600.0, step: float = 0.1,
     """Simulate the system of ``fmu.ssp.write_ssp`` with fmpy; returns its connector time series."""
     from fmpy.ssp.simulation import simulate_ssp
 
+    from .ssp import parameter_set
+
     rows = simulate_ssp(str(ssp_path), start_time=0.0, stop_time=stop_time, step_size=step,
+                        parameter_set=parameter_set(ssp_path),
                         input={"steering_angle": lambda t: profile(t)[0], "speed": lambda t: profile(t)[1]})
     return {name: np.asarray(rows[name]) for name in rows.dtype.names}
 
@@ -343,10 +348,13 @@ def plot_headings(result: CosimResult, path: str | Path, title: str = "OdoCompas
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     t = result.time
-    axes[0].plot(t, np.degrees(result.true_heading), "k-", lw=1.6, label="true heading (vehicle FMU)")
-    axes[0].plot(t, np.degrees(result.heading), "C0-", lw=1.0, label="estimated heading (OdoCompass FMU)")
-    axes[0].plot(t, np.degrees(result.series["compass_heading"]), "C1.", ms=1.0, alpha=0.4, label="compass heading")
-    axes[0].set_ylabel("heading (deg, clockwise from north)")
+    truth = np.unwrap(result.true_heading)  # continuous, so a heading through south draws no 360° jumps
+    axes[0].plot(t, np.degrees(truth), "k-", lw=1.6, label="true heading (vehicle FMU)")
+    axes[0].plot(t, np.degrees(truth + wrap(result.heading - result.true_heading)), "C0-", lw=1.0,
+                 label="estimated heading (OdoCompass FMU)")
+    axes[0].plot(t, np.degrees(truth + wrap(result.series["compass_heading"] - result.true_heading)), "C1.", ms=1.0,
+                 alpha=0.4, label="compass heading")
+    axes[0].set_ylabel("heading (deg, clockwise from north, unwrapped)")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title(title)
     axes[1].plot(t, result.heading_error_deg(), "C0-", lw=0.8, label="estimate - truth (master in fmu/cosim.py)")

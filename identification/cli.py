@@ -53,8 +53,14 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--validate", nargs="*", default=[])
     i.add_argument("--plots", default=None, metavar="DIR")
     i.add_argument("--mode", choices=("complementary", "odometer", "kalman"), default="odometer",
-                   help="estimator mode whose heading is fitted (default odometer: the wheel model alone)")
-    i.add_argument("--max-iter", type=int, default=400)
+                   help="estimator mode whose heading is fitted (default odometer: wheel parameters on the "
+                        "odometer heading, then D_N and other filter keys on the complementary heading)")
+    i.add_argument("--max-iter", type=int, default=400, help="cap on iterations per stage (stops earlier on convergence)")
+    i.add_argument("--refine-a", choices=("on", "off"), default="on", help="online refinement of a while fitting")
+    i.add_argument("--calibration", choices=("on", "off"), default="off",
+                   help="left/right dpp calibration while fitting (default off: fit the raw wheel model)")
+    i.add_argument("--increment-s", type=float, default=30.0,
+                   help="odometer heading fitted as heading changes over this many seconds (0: absolute, offset removed)")
 
     b = sub.add_parser("build-fmu", help="export the estimator FMU")
     b.add_argument("--params", default=None)

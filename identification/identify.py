@@ -49,12 +49,12 @@ DEFAULT_INCREMENT_S = 30.0
 
 KEY_HINTS = {
     "P": "P and B act only in tight turns (eq. 14: T_E ~ T_F - (1-P) B² c² / (2 T_F)); these drives reach "
-         "|dD/AD| = {cmax:.3f}",
+         "|dD/AD| = {cmax:.3f} (99.5th percentile while moving)",
     "B": "P and B act only in tight turns (eq. 14: T_E ~ T_F - (1-P) B² c² / (2 T_F)); these drives reach "
-         "|dD/AD| = {cmax:.3f}",
+         "|dD/AD| = {cmax:.3f} (99.5th percentile while moving)",
     "T_C": "T_C acts only through the online refinement of a (turns over 45 deg at 15-45 mph with a consistent "
            "compass, refine_a on); a was refined {refinements} times on these drives",
-    "a": "a acts through a V² at speed in turns; these drives reach {vmax:.1f} m/s",
+    "a": "a acts through a V² at speed in turns; these drives reach {vmax:.1f} m/s (99.5th percentile)",
 }
 
 
@@ -300,8 +300,8 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
             "effective_errors_per_drive": [float(x) for x in problem.n_eff],
             "derivatives": "forward" if use_forward else "reverse (checkpointed)",
             "iterations": iters, "evaluations": evals, "converged": bool(res_final.converged),
-            "stop_reason": res_final.reason, "loss_history": [float(v) for v in res.history] +
-            ([float(v) for v in res_final.history[1:]] if res_final is not res else []),
+            "stop_reason": res_final.reason, "loss_history": [float(v) for v in res.history],
+            "loss_history_refit": [float(v) for v in res_final.history] if res_final is not res else [],
             "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen)],
             "wall_time_s": time.perf_counter() - t_stage,
         })
@@ -314,8 +314,11 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
 
     # context for the identifiability warnings
     w_train = ev_after["weight"][: len(train)] > 0
-    cmax = float(np.max(np.abs(ev_after["curvature"][: len(train)][w_train]), initial=0.0))
-    vmax = float(np.max(ev_after["speed"][: len(train)][w_train], initial=0.0))
+    moving = w_train & (ev_after["speed"][: len(train)] > 0.5)
+    curv = np.abs(ev_after["curvature"][: len(train)][moving])
+    cmax = float(np.percentile(curv, 99.5)) if curv.size else 0.0  # robust: isolated windows at a standstill
+    speed = ev_after["speed"][: len(train)][moving]
+    vmax = float(np.percentile(speed, 99.5)) if speed.size else 0.0
     a_tr = ev_after["a"][: len(train)]
     refinements = int(np.sum(np.abs(np.diff(a_tr, axis=-1)) > 0))
     for label, row in param_rows.items():

@@ -22,7 +22,7 @@ comma2k19 (Toyota RAV4, 60 s of highway, one public example segment)
       compass_y = levelled *left* component, so atan2(y, x) is the magnetic heading (SPEC §1).
     * reference: the heading of the camera's forward axis from ``global_pose/frame_orientations``
       (Hamilton quaternion [w, x, y, z]; as a rotation matrix it maps camera [forward, right,
-      down] axes into ECEF, checked: its third axis points down within 4°), expressed in the
+      down] axes into ECEF, checked: its third axis points down, tilted only by the road's pitch), in the
       local ENU frame at each pose position, clockwise from true north.  The heading of the
       ECEF velocity is written too (extra column ``vel_heading_deg``) as a check.
     * the recording has no accelerometer file, so the pose's roll/pitch are the only tilt source.
@@ -434,7 +434,8 @@ def read_husky_bag(path) -> dict[str, np.ndarray]:
             topics = {c.topic for c in reader.connections}
             for need in (HUSKY_TOPIC_ODOM, HUSKY_TOPIC_IMU):
                 if need not in topics:
-                    raise OdoCompassError(f"{path}: topic {need} not in the bag (topics: {', '.join(sorted(topics))})")
+                    listed = ", ".join(sorted(topics))
+                    raise OdoCompassError(f"{path}: topic {need} not in the bag (topics: {listed})")
             conns = [c for c in reader.connections if c.topic in (HUSKY_TOPIC_ODOM, HUSKY_TOPIC_IMU, HUSKY_TOPIC_FIX)]
             for conn, _t, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -452,7 +453,8 @@ def read_husky_bag(path) -> dict[str, np.ndarray]:
         raise
     except Exception as exc:
         raise OdoCompassError(f"{path}: cannot read as a ROS 1 bag: {' '.join(str(exc).split())}") from None
-    out = {"odom": np.array(odo, dtype=np.float64).reshape(-1, 6), "imu": np.array(imu, dtype=np.float64).reshape(-1, 8),
+    out = {"odom": np.array(odo, dtype=np.float64).reshape(-1, 6),
+           "imu": np.array(imu, dtype=np.float64).reshape(-1, 8),
            "fix": np.array(fix, dtype=np.float64).reshape(-1, 5)}
     for name in ("odom", "imu"):
         if len(out[name]) < 2:
@@ -516,28 +518,45 @@ def gps_course_check(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span
 
 def course_scale_fit(t, heading_deg, fix_t, east, north, odo_t, odo_yaw, *, span: int = 15,
                      min_speed: float = 0.4, max_turn_deg: float = 5.0,
-                     scales=np.linspace(0.8, 1.3, 501)) -> dict[str, float]:
+                     scales=np.linspace(0.8, 1.3, 251), bootstrap: int = 0, block_s: float = 30.0,
+                     seed: int = 0) -> dict[str, Any]:
     """Which scale of a heading's *changes* fits the GPS course best: h_s = h0 + s (h - h0).
 
     Same straight-stretch selection as ``gps_course_check``; the constant offset is removed at
-    each trial scale; returns the best scale, the offset and the RMS about it (deg).
+    each trial scale; returns the best scale, the offset and the RMS about it (deg).  With
+    ``bootstrap`` > 0, also a 95 % interval of the scale from a block bootstrap (blocks of
+    ``block_s`` seconds: neighbouring course samples share fixes and are not independent).
     """
     de, dn = east[span:] - east[:-span], north[span:] - north[:-span]
     ta, tb = fix_t[:-span], fix_t[span:]
     turn = np.abs(np.interp(tb, odo_t, odo_yaw) - np.interp(ta, odo_t, odo_yaw))
     ok = (np.hypot(de, dn) >= min_speed * (tb - ta)) & (np.rad2deg(turn) < max_turn_deg)
     course = np.arctan2(de, dn)[ok]
+    tc = 0.5 * (ta + tb)[ok]
     h = np.unwrap(np.deg2rad(np.asarray(heading_deg, dtype=np.float64)))
-    hc = np.interp(0.5 * (ta + tb)[ok], t, h) - h[0]
-    best = None
-    for sc in scales:
-        e = course - sc * hc
-        off = np.angle(np.mean(np.exp(1j * e)))
-        rms = float(np.sqrt(np.mean(np.angle(np.exp(1j * (e - off))) ** 2)))
-        if best is None or rms < best[0]:
-            best = (rms, float(sc), float(off))
-    return {"scale": round(best[1], 3), "offset_deg": round(float(np.rad2deg(best[2])), 1),
-            "rms_deg": round(float(np.rad2deg(best[0])), 2), "n": int(ok.sum())}
+    hc = np.interp(tc, t, h) - h[0]
+
+    def best_of(idx):
+        best = None
+        for sc in scales:
+            e = course[idx] - sc * hc[idx]
+            off = np.angle(np.mean(np.exp(1j * e)))
+            rms = float(np.sqrt(np.mean(np.angle(np.exp(1j * (e - off))) ** 2)))
+            if best is None or rms < best[0]:
+                best = (rms, float(sc), float(off))
+        return best
+
+    rms, scale, off = best_of(np.arange(len(tc)))
+    out: dict[str, Any] = {"scale": round(scale, 3), "offset_deg": round(float(np.rad2deg(off)), 1),
+                           "rms_deg": round(float(np.rad2deg(rms)), 2), "n": int(ok.sum())}
+    if bootstrap > 0 and len(tc):
+        rng = np.random.default_rng(seed)
+        blocks = np.floor((tc - tc[0]) / block_s).astype(int)
+        members = [np.flatnonzero(blocks == b) for b in np.unique(blocks)]
+        draws = [best_of(np.concatenate([members[i] for i in rng.integers(0, len(members), len(members))]))[1]
+                 for _ in range(bootstrap)]
+        out["scale_ci95"] = [round(float(x), 3) for x in np.percentile(draws, [2.5, 97.5])]
+    return out
 
 
 def import_husky(source, *, wheel_separation: float = HUSKY_WHEEL_SEPARATION, dpp: float = HUSKY_DPP,
@@ -667,7 +686,8 @@ def husky_params(report: dict[str, Any]) -> dict[str, Any]:
         "report": {
             "import": report,
             "sources": {
-                "T_R, T_F": "the controller's effective wheel separation (track x multiplier); T_F unused (rear axle)",
+                "T_R, T_F": "the controller's effective wheel separation (track x multiplier); "
+                            "T_F unused (rear axle)",
                 "B": "husky_description wheelbase",
                 "variation_deg, field_magnitude": "WMM2015v2 at the first GPS fix and the bag's date "
                                                   "(the compass is derived with the same H)",
@@ -900,6 +920,11 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     return res
 
 
+HUSKY_WIDE_TR_PRIOR = 0.2
+"""Prior std of log T_R for the second Husky fit: a skid-steer's *effective* track is known only
+roughly (the controller's own multiplier, 1.875, says so), unlike a car's datasheet track (5 %)."""
+
+
 def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: int = 300,
                          train_fraction: float = 0.6) -> dict[str, Any]:
     import time
@@ -918,85 +943,107 @@ def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter:
     res: dict[str, Any] = {"import": report, "train_s": round(train.metadata["duration_s"], 1),
                            "validate_s": round(val.metadata["duration_s"], 1)}
 
-    t0 = time.perf_counter()
-    fitted, fit_report = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
-                                  max_iter=max_iter, progress=sys.stderr.isatty())
-    res["identify_wall_s"] = round(time.perf_counter() - t0, 1)
-    res["identify_report"] = fit_report
+    # One configuration for the fits and for every figure below: odometer heading, online refinement
+    # of a on (its gates - 15-45 mph - never open at the Husky's <= 1 m/s), left/right calibration
+    # off (the identification's default; on this drive it leaves dpp_ratio at 1.0 anyway).
+    config = jaxmodel.Config(mode="odometer", refine_a=True, calibration=False)
+    variants = {"nominal": (nominal, None)}
+    fits = {"identified": None, "identified_wide_T_R_prior": {"T_R": HUSKY_WIDE_TR_PRIOR}}
+    res["fits"] = {}
+    for name, prior in fits.items():
+        t0 = time.perf_counter()
+        fitted, fit_report = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
+                                      max_iter=max_iter, progress=sys.stderr.isatty(), config=config,
+                                      prior_std=prior)
+        variants[name] = (fitted, fit_report)
+        res["fits"][name] = {
+            "prior_std_log_T_R": (prior or {}).get("T_R", 0.05), "wall_s": round(time.perf_counter() - t0, 1),
+            "T_R": float(fitted.T_R), "a": float(fitted.a),
+            "T_R_std_error": fit_report["parameters"]["T_R"]["std_error"],
+            "T_R_status": fit_report["parameters"]["T_R"]["status"],
+            "a_status": fit_report["parameters"]["a"]["status"],
+            "iterations": fit_report["iterations"], "warnings": fit_report["warnings"],
+            "drives": fit_report["drives"]}
+        out_dir.mkdir(parents=True, exist_ok=True)
+        jaxmodel.save_params(out_dir / f"husky.{name}.params.json", fitted,
+                             report={"identify": fit_report, "import": report})
     res["nominal"] = {"T_R": float(nominal.T_R), "a": float(nominal.a)}
-    res["identified"] = {"T_R": float(fitted.T_R), "a": float(fitted.a)}
 
-    config = jaxmodel.Config(mode="odometer")
-    rows = {}
+    rows: dict[str, dict[str, float]] = {}
     outs = {}
-    for name, params in (("nominal", nominal), ("identified", fitted)):
+    for name, (params, _rep) in variants.items():
         for part, d in (("train", train), ("validate", val)):
             o = estimate_drive(params, d, config)
             outs[(name, part)] = o
-            rows.setdefault(name, {})[part] = round(heading_rmse_deg(o["heading_deg"], np.rad2deg(d.ref_heading)), 2)
+            ref = np.rad2deg(d.ref_heading)
+            rows.setdefault(name, {})[part] = round(heading_rmse_deg(o["heading_deg"], ref), 2)
+            e = wrap_deg(o["heading_deg"] - ref)
+            rows[name][f"{part}_final_error"] = round(float(e[-1]), 2)
     res["odometer_rmse_vs_imu_deg"] = rows
 
     # Independent check: GPS course over ground on straight stretches of the validation part.
-    fix_t = np.asarray(columns["time_s"])[columns["fix_valid"] > 0]
-    fe = np.asarray(columns["fix_east_m"])[columns["fix_valid"] > 0]
-    fn = np.asarray(columns["fix_north_m"])[columns["fix_valid"] > 0]
+    t_all = np.asarray(columns["time_s"])
+    fv = np.asarray(columns["fix_valid"]) > 0
+    fix_t, fe, fn = t_all[fv], np.asarray(columns["fix_east_m"])[fv], np.asarray(columns["fix_north_m"])[fv]
     tv = np.asarray(val.inputs.time_s)
     in_val = fix_t >= tv[0]
     odo_yaw = -np.unwrap(np.deg2rad(columns["odom_heading_deg"]))
-    gps = {}
-    gps["imu_reference"] = gps_course_check(tv, np.rad2deg(val.ref_heading), fix_t[in_val], fe[in_val], fn[in_val],
-                                            np.asarray(columns["time_s"]), odo_yaw)
-    for name in ("nominal", "identified"):
+    ref_all_deg = np.rad2deg(drive.ref_heading)
+    gps = {"imu_reference": gps_course_check(tv, np.rad2deg(val.ref_heading), fix_t[in_val], fe[in_val], fn[in_val],
+                                             t_all, odo_yaw)}
+    for name in variants:
         gps[f"odometer_{name}"] = gps_course_check(tv, outs[(name, "validate")]["heading_deg"], fix_t[in_val],
-                                                   fe[in_val], fn[in_val], np.asarray(columns["time_s"]), odo_yaw)
+                                                   fe[in_val], fn[in_val], t_all, odo_yaw)
     res["gps_course_check_validate"] = gps
-
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # Whole drive: which scale of each heading's turn angles fits the GPS course (block bootstrap CI).
+    sources = {"imu_reference": ref_all_deg, "controller_odometry": columns["odom_heading_deg"],
+               "imu_gyro_integral": columns["gyro_heading_deg"]}
+    for name, (params, _rep) in variants.items():
+        sources[f"odometer_{name}"] = estimate_drive(params, drive, config)["heading_deg"]
+    res["gps_course_scale_fit_whole_drive"] = {
+        name: course_scale_fit(t_all, h_deg, fix_t, fe, fn, t_all, odo_yaw, bootstrap=200)
+        for name, h_deg in sources.items()}
     (out_dir / "husky.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
-    jaxmodel.save_params(out_dir / "husky.identified.params.json", fitted,
-                         report={"identify": fit_report, "import": report})
 
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t = np.asarray(columns["time_s"])
+    colors = {"nominal": "C0", "identified": "C3", "identified_wide_T_R_prior": "C2"}
+    labels = {"nominal": "nominal", "identified": "identified (T_R prior 5 %)",
+              "identified_wide_T_R_prior": f"identified (T_R prior {HUSKY_WIDE_TR_PRIOR:.0%})"}
+    t = t_all
     ref = np.rad2deg(drive.ref_heading)
-    fig, ax = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
-    ax[0].plot(t, np.rad2deg(np.unwrap(np.deg2rad(ref))), color="k", label="IMU yaw (reference)")
-    full_nom = estimate_drive(nominal, drive, config)
-    full_fit = estimate_drive(fitted, drive, config)
-    for name, o, c in (("nominal", full_nom, "C0"), ("identified", full_fit, "C3")):
-        ax[0].plot(t, np.rad2deg(np.unwrap(np.deg2rad(o["heading_deg"]))), color=c,
-                   label=f"odometer, {name} T_R={float((nominal if name == 'nominal' else fitted).T_R):.3f} m")
-    for name, c in (("nominal", "C0"), ("identified", "C3")):
-        o = outs[(name, "validate")]
-        ax[0].plot(tv, np.rad2deg(np.unwrap(np.deg2rad(o["heading_deg"]))), color=c, ls="--",
-                   label=f"odometer, {name}, restarted at the split")
-    # GPS course (straight stretches) for orientation.
-    span = 10
+    unwrap_deg = lambda a: np.rad2deg(np.unwrap(np.deg2rad(a)))  # noqa: E731
+    fig, ax = plt.subplots(2, 1, figsize=(10, 8.5), sharex=True)
+    ax[0].plot(t, unwrap_deg(ref), color="k", lw=1.5, label="IMU yaw (reference)")
+    for name, (params, _rep) in variants.items():
+        o = estimate_drive(params, drive, config)
+        ax[0].plot(t, unwrap_deg(o["heading_deg"]), color=colors[name], lw=1,
+                   label=f"odometer, {labels[name]}: T_R = {float(params.T_R):.3f} m")
+    span = 15
     de, dn = fe[span:] - fe[:-span], fn[span:] - fn[:-span]
     tc = 0.5 * (fix_t[span:] + fix_t[:-span])
-    ok = np.hypot(de, dn) >= 0.2 * (fix_t[span:] - fix_t[:-span])
+    ok = np.hypot(de, dn) >= 0.4 * (fix_t[span:] - fix_t[:-span])
     course = np.rad2deg(np.arctan2(de, dn))[ok]
-    unwrapped_ref = np.interp(tc[ok], t, np.rad2deg(np.unwrap(np.deg2rad(ref))))
-    course = unwrapped_ref + wrap_deg(course - unwrapped_ref)
-    ax[0].plot(tc[ok], course, ".", ms=2, color="0.6", label="GPS course over ground (4 s baseline)")
-    split_t = float(tv[0])
-    for a in ax:
-        a.axvline(split_t, color="0.3", lw=1, ls=":")
+    near = np.interp(tc[ok], t, unwrap_deg(ref))
+    ax[0].plot(tc[ok], near + wrap_deg(course - near), ".", ms=2.5, color="0.55",
+               label="GPS course over ground (6 s baseline)")
+    for a_ in ax:
+        a_.axvline(float(tv[0]), color="0.3", lw=1, ls=":")
     ax[0].set_ylabel("heading [deg, unwrapped]")
-    ax[0].set_title(f"Husky test1.bag: identification of T_R and a on the first {train_fraction:.0%}")
-    ax[0].legend(fontsize=7, loc="lower left")
-    for name, c in (("nominal", "C0"), ("identified", "C3")):
-        o = outs[(name, "validate")]
-        ax[1].plot(tv, wrap_deg(o["heading_deg"] - np.rad2deg(val.ref_heading)), color=c,
-                   label=f"{name}: RMSE {rows[name]['validate']:.2f}° on the last {1 - train_fraction:.0%}")
-        o = outs[(name, "train")]
-        ax[1].plot(np.asarray(train.inputs.time_s), wrap_deg(o["heading_deg"] - np.rad2deg(train.ref_heading)),
-                   color=c, alpha=0.5, label=f"{name}: RMSE {rows[name]['train']:.2f}° on the first {train_fraction:.0%}")
-    ax[1].set_ylabel("odometer - IMU yaw [deg]")
+    ax[0].set_title(f"Husky test1.bag: T_R and a identified on the first {train_fraction:.0%} "
+                    f"(left of the dotted line)")
+    ax[0].legend(fontsize=7, loc="upper left")
+    for name in variants:
+        for part, d, alpha in (("train", train, 0.45), ("validate", val, 1.0)):
+            o = outs[(name, part)]
+            lab = (f"{labels[name]}: RMSE {rows[name]['train']:.2f}° (first {train_fraction:.0%}), "
+                   f"{rows[name]['validate']:.2f}° (last {1 - train_fraction:.0%})") if part == "validate" else None
+            ax[1].plot(np.asarray(d.inputs.time_s), wrap_deg(o["heading_deg"] - np.rad2deg(d.ref_heading)),
+                       color=colors[name], alpha=alpha, lw=1, label=lab)
+    ax[1].set_ylabel("odometer - IMU yaw [deg]\n(restarted at the split)")
     ax[1].set_xlabel("time [s]")
     ax[1].legend(fontsize=8)
     fig.tight_layout()

@@ -79,7 +79,7 @@ def _empirical_track(ev, drives, params, n_train: int, bins):
     for lo, hi in zip(bins[:-1], bins[1:]):
         sel = (np.abs(c) >= lo) & (np.abs(c) < hi)
         den = np.sum(sign[sel] * dpsi[sel])
-        if sel.sum() > 50 and den > np.radians(90.0):
+        if lo >= 0.03 and sel.sum() > 100 and den > np.radians(180.0):
             centers.append(0.5 * (lo + hi))
             values.append(np.sum(sign[sel] * dD[sel]) / den)
     return np.array(centers), np.array(values), np.abs(c)
@@ -123,10 +123,16 @@ def loss_plot(path: Path, stage_reports) -> Path:
     for st in stage_reports:
         h = np.asarray(st["loss_history"], dtype=np.float64)
         if h.size:
-            ax.plot(np.arange(h.size), h - h.min() + 1e-9, marker=".", label=f"{st['name']}: {','.join(st['keys'])}")
+            line, = ax.plot(np.arange(h.size), h - h[-1] + 1e-9, marker=".",
+                            label=f"{st['name']}: {','.join(st['keys'])}")
+            h2 = np.asarray(st.get("loss_history_refit", []), dtype=np.float64)
+            if h2.size:
+                ax.plot(np.arange(h.size - 1, h.size - 1 + h2.size), h2 - h2[-1] + 1e-9, ls="--", marker=".",
+                        color=line.get_color(),
+                        label=f"{st['name']}: refit with {','.join(st['refit_with_fixed'])} kept at start")
     ax.set_yscale("log")
     ax.set_xlabel("iteration")
-    ax.set_ylabel("MAP objective - final value (nats)")
+    ax.set_ylabel("MAP objective - its final value (nats)")
     ax.set_title("identification loss curve", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)

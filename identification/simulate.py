@@ -46,13 +46,13 @@ GRID_M = 0.25
 # transition length (m, the clothoid between a straight and an arc), road grade sigma (deg) and
 # correlation length (m), anomalies per km and the kind probabilities, compass transients per s.
 ROADS: dict[str, dict[str, Any]] = {
-    "urban": dict(a_lat=2.5, accel=2.0, decel=2.5, transition=6.0, grade_deg=1.2, grade_m=250.0,
+    "urban": dict(a_lat=2.5, accel=2.0, decel=2.5, transition=6.0, grade_deg=0.9, grade_m=250.0,
                   anomalies_per_km=3.0, kinds={"building": 0.35, "rail": 0.15, "truck": 0.3, "bridge": 0.2},
                   transients_per_s=1 / 60, two_way=0.5),
-    "rural": dict(a_lat=2.5, accel=1.5, decel=2.0, transition=30.0, grade_deg=1.8, grade_m=400.0,
+    "rural": dict(a_lat=2.5, accel=1.5, decel=2.0, transition=30.0, grade_deg=1.5, grade_m=400.0,
                   anomalies_per_km=0.8, kinds={"bridge": 0.3, "rail": 0.3, "truck": 0.2, "building": 0.2},
                   transients_per_s=1 / 120, two_way=0.5),
-    "highway": dict(a_lat=2.0, accel=1.0, decel=1.5, transition=80.0, grade_deg=1.2, grade_m=600.0,
+    "highway": dict(a_lat=2.0, accel=1.0, decel=1.5, transition=80.0, grade_deg=1.0, grade_m=600.0,
                     anomalies_per_km=0.5, kinds={"bridge": 0.7, "rail": 0.1, "building": 0.2},
                     transients_per_s=1 / 90, two_way=0.0),
     "parking": dict(a_lat=1.5, accel=0.8, decel=1.0, transition=1.5, grade_deg=0.3, grade_m=60.0,
@@ -159,7 +159,7 @@ def _urban_legs(rng, budget_s, k_max):
         legs.append(Leg(length, 0.0, v_street, "urban", stop_s=stop, straight=True))
         t += length / (0.7 * v_street) + stop
         if rng.random() < 0.55:  # 90° turn at the intersection
-            radius = rng.uniform(8.0, 20.0)
+            radius = rng.uniform(8.0, 35.0)  # tight corners to wide arterial junctions
             angle = math.radians(90.0 + rng.normal(0.0, 3.0)) * rng.choice([-1.0, 1.0])
             kappa = math.copysign(min(1.0 / radius, k_max), angle)
             v_turn = min(v_street, math.sqrt(ROADS["urban"]["a_lat"] / abs(kappa))) * rng.uniform(0.75, 1.0)
@@ -187,7 +187,7 @@ def _rural_legs(rng, budget_s, k_max):
             t += abs(angle / kappa) / v_turn + 10.0
             v_road = _speed(rng, 15.0, 25.0, rng.uniform(17.0, 24.0))
         else:
-            radius = rng.uniform(100.0, 600.0)
+            radius = rng.uniform(80.0, 600.0)
             angle = math.radians(rng.uniform(10.0, 90.0)) * rng.choice([-1.0, 1.0])
             v_curve = min(v_road, math.sqrt(ROADS["rural"]["a_lat"] * radius))
             legs.append(Leg(abs(angle) * radius, math.copysign(1.0 / radius, angle), v_curve, "rural"))

@@ -50,8 +50,11 @@ from .params import deg
 class CalibrationState(NamedTuple):
     dpp_left: jnp.ndarray   # m per pulse, current
     dpp_right: jnp.ndarray  # m per pulse, current
-    ratio: jnp.ndarray      # k = dpp_right / dpp_left, the filtered correction ratio
-    weight: jnp.ndarray     # accumulated intensity W of accepted stretches
+    ratio: jnp.ndarray      # k = dpp_right / dpp_left applied
+    mean: jnp.ndarray       # filtered correction ratio (weighted mean of the stretches' k_s)
+    weight: jnp.ndarray     # its weight W (prior + stretch intensities, with forgetting)
+    weight2: jnp.ndarray    # sum of squared weights (effective number of stretches W^2/W2)
+    m2: jnp.ndarray         # weighted sum of squared deviations of k_s from the mean
     updates: jnp.ndarray    # number of stretches that updated k
     win_left: jnp.ndarray   # pulses of the current check window
     win_right: jnp.ndarray
@@ -75,9 +78,10 @@ def _coefficients(params, ratio):
 def init_calibration_state(params):
     z = jnp.zeros((), jnp.float64)
     ratio = jnp.asarray(params.dpp_right / params.dpp_left, jnp.float64)
+    w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
     return CalibrationState(
         dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
-        ratio=ratio, weight=z, updates=z, win_left=z, win_right=z, win_distance=z, win_sin=z, win_cos=z,
+        ratio=ratio, mean=ratio, weight=w0, weight2=w0 * w0, m2=z, updates=z, win_left=z, win_right=z, win_distance=z, win_sin=z, win_cos=z,
         win_sane=jnp.ones((), jnp.float64), str_left=z, str_right=z, str_distance=z, str_heading0=z,
         str_heading0_ok=z)
 
@@ -127,28 +131,47 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
 
     # Correction value and its intensity (claims 5-14).
     k_s = safe_div(str_left, str_right, fallback=1.0)
-    k = cs.ratio
+    k0 = params.dpp_right / params.dpp_left
+    mean = cs.mean
     dpsi = wrap(win_heading - str_heading0)
     tol = deg(params.cal_compass_tolerance_deg)
     both = win_compass_ok & (str_heading0_ok > 0.5)
     w_compass = jnp.where(both, jnp.exp(-0.5 * (dpsi / tol) ** 2), params.cal_no_compass_weight)
-    deviation = k_s / k - 1.0
+    deviation = k_s / mean - 1.0
     w_sanity = 1.0 / (1.0 + (deviation / params.cal_sanity_bound) ** 2)
     w = jnp.where(stretch_done, w_compass * w_sanity, 0.0)
-    weight = cs.weight + w
-    gain = w * jnp.maximum(1.0 / (params.cal_prior_weight + weight), 1.0 / params.cal_filter_stretches)
-    gain = jnp.clip(gain, 0.0, 1.0)
-    k0 = params.dpp_right / params.dpp_left
+
+    # Filtered correction ratio (claim 13): weighted mean with forgetting f = 1 - w/N per stretch
+    # (a growing-memory average until the weight reaches cal_filter_stretches, then exponential),
+    # and its weighted spread (West's update), pooled with cal_prior_weight pseudo-stretches of
+    # spread cal_stretch_sigma around the parameter ratio.
+    f = jnp.clip(1.0 - w / params.cal_filter_stretches, 0.0, 1.0)
+    weight = f * cs.weight + w
+    weight2 = f * f * cs.weight2 + w * w
     lim = params.cal_max_correction * k0
-    ratio = jnp.clip(k + gain * (k_s - k), k0 - lim, k0 + lim)
-    ratio = jnp.where(stretch_done, ratio, k)
+    new_mean = jnp.clip(mean + safe_div(w, weight) * (k_s - mean), k0 - lim, k0 + lim)
+    m2 = f * cs.m2 + w * (k_s - mean) * (k_s - new_mean)
+    # Significance of the correction (claim 5, "correctness ... and an intensity"): the ratio
+    # applied is k0 + lam (mean - k0), lam = d^2 / (d^2 + z^2 var_mean), so a mean that the
+    # stretches do not distinguish from the parameter ratio is not applied (a shrinkage estimator).
+    n_eff = safe_div(weight * weight, weight2, fallback=1.0)
+    var_mean = safe_div(m2 + params.cal_prior_weight * params.cal_stretch_sigma ** 2, weight * n_eff, fallback=1.0)
+    d = new_mean - k0
+    lam = safe_div(d * d, d * d + params.cal_significance ** 2 * var_mean)
+    ratio = k0 + lam * d
+
+    done = stretch_done
+    mean = jnp.where(done, new_mean, mean)
+    ratio = jnp.where(done, ratio, cs.ratio)
     dpp_left, dpp_right = _coefficients(params, ratio)
 
     zero_if = lambda cond, v: jnp.where(cond, 0.0, v)  # noqa: E731
     return CalibrationState(
         dpp_left=jnp.where(stretch_done, dpp_left, cs.dpp_left),
         dpp_right=jnp.where(stretch_done, dpp_right, cs.dpp_right),
-        ratio=ratio, weight=weight, updates=cs.updates + jnp.where(stretch_done, 1.0, 0.0),
+        ratio=ratio, mean=mean, weight=jnp.where(done, weight, cs.weight),
+        weight2=jnp.where(done, weight2, cs.weight2), m2=jnp.where(done, m2, cs.m2),
+        updates=cs.updates + jnp.where(done, 1.0, 0.0),
         win_left=zero_if(win_done, win_left), win_right=zero_if(win_done, win_right),
         win_distance=zero_if(win_done, win_distance), win_sin=zero_if(win_done, win_sin),
         win_cos=zero_if(win_done, win_cos), win_sane=jnp.where(win_done, one, win_sane),

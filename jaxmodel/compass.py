@@ -10,6 +10,9 @@ from .params import DEVIATION_TABLE_SIZE, deg
 MIN_FIELD = 1e-9
 """A horizontal field weaker than this (compass units) carries no direction: the sample is skipped."""
 
+MAX_FIELD = 1e100
+"""A compass component larger than this (compass units) is a fault: the sample is skipped."""
+
 
 def deviation(raw_heading, deviation_deg):
     """Deviation (rad) at raw heading A, periodic linear interpolation of the 36-entry table (FIG. 8A block 4).
@@ -34,7 +37,8 @@ def compass_heading(params, compass_x, compass_y):
     """
     x = compass_x - params.X0
     y = compass_y - params.Y0
-    valid = jnp.isfinite(x) & jnp.isfinite(y)
+    # Components beyond MAX_FIELD are sensor faults (and would overflow |B|^2 and the learned mean).
+    valid = jnp.isfinite(x) & jnp.isfinite(y) & (jnp.abs(x) < MAX_FIELD) & (jnp.abs(y) < MAX_FIELD)
     x = jnp.where(valid, x, 1.0)
     y = jnp.where(valid, y, 0.0)
     b2 = x * x + y * y

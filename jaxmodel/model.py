@@ -137,6 +137,7 @@ class Outputs(NamedTuple):
     map_used: jnp.ndarray             # 1.0 if the map heading replaced the compass
     dpp_ratio: jnp.ndarray            # dpp_right / dpp_left
     distance: jnp.ndarray             # m
+    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: heading 0 is meaningless)
 
 
 def init_state(params) -> State:
@@ -315,7 +316,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         compass_valid=jnp.where(compass_ok, 1.0, 0.0), odometer_valid=jnp.where(odo["plausible"], 1.0, 0.0),
         curvature=odo["curvature"], effective_track=odo["track"], factor=factor, f_delta=f_delta, e_c=e_c, e_w=e_w,
         map_used=jnp.where(map_used, 1.0, 0.0),
-        dpp_ratio=cal_state.dpp_right / cal_state.dpp_left, distance=new_state.distance,
+        dpp_ratio=cal_state.dpp_right / cal_state.dpp_left, distance=new_state.distance, initialized=initialized,
     )
     return new_state, out
 

@@ -55,7 +55,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
 
     # Straight, no turn pending: follow the offset over refine_smoothing_m.
     gain = jnp.clip(d_t / params.refine_smoothing_m, 0.0, 1.0)
-    follow = (~active) & (~turning) & compass_ok
+    follow = (~active) & (~turning) & compass_good  # gate (3) also before the turn
     offset_before = jnp.where(follow, wrap(rs.offset_before + gain * wrap(delta - rs.offset_before)), rs.offset_before)
 
     starts = (~active) & turning

@@ -286,3 +286,24 @@ def test_husky_gps_course_scales(husky):
     assert abs(fit["controller_odometry"]["scale"] - 1.0) < 0.05
     assert fit["imu_reference"]["scale"] > 1.07
     assert abs(fit["imu_gyro_integral"]["scale"] - 1.0) < 0.07
+
+
+@pytest.mark.slow
+def test_husky_identification_on_first_60_percent(husky):
+    """identify T_R and a on the first 60 %: T_R grows toward the IMU's smaller turn angles, a stays put
+    (not identifiable at <= 1 m/s), and the odometer RMSE against the IMU on the last 40 % does not grow."""
+    from identification.identify import identify
+
+    columns, report = husky
+    nominal = jaxmodel.make_params({k: v for k, v in im.husky_params(report).items() if k != "report"})
+    drive = drive_from_columns(columns, source="husky")
+    train, val = im.split_drive(drive, 0.6)
+    config = jaxmodel.Config(mode="odometer", calibration=False)
+    fitted, rep = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
+                           max_iter=100, progress=False, config=config, prior_std={"T_R": im.HUSKY_WIDE_TR_PRIOR})
+    assert float(fitted.T_R) > 1.03 * float(nominal.T_R)
+    assert float(fitted.a) == pytest.approx(float(nominal.a), rel=0.05)
+    assert any("a is not identifiable" in w for w in rep["warnings"])
+    before = im.heading_rmse_deg(estimate_drive(nominal, val, config)["heading_deg"], np.rad2deg(val.ref_heading))
+    after = im.heading_rmse_deg(estimate_drive(fitted, val, config)["heading_deg"], np.rad2deg(val.ref_heading))
+    assert after < before

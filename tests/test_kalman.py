@@ -138,3 +138,132 @@ def test_update_matches_textbook_on_random_system():
         xj, Pj, _ = K.update(jnp.asarray(x), jnp.asarray(P), jnp.asarray(nu), jnp.asarray(H), jnp.asarray(R), False, 0.0)
         np.testing.assert_array_equal(np.asarray(xj), x)
         np.testing.assert_allclose(np.asarray(Pj), P, rtol=1e-15)
+
+
+# ------------------------------------------------------------------------------------------
+# On simulated drives
+
+import functools  # noqa: E402
+
+from identification.drive_log import drive_from_columns  # noqa: E402
+from identification.simulate import simulate  # noqa: E402
+from jaxmodel.model import init_state, step  # noqa: E402
+
+KALMAN = jm.Config(mode="kalman")
+
+
+@functools.lru_cache(maxsize=None)
+def _sim(scenario, duration_s, seed, fixes_sigma=None):
+    cols, truth = simulate(scenario, duration_s, seed, fixes_sigma=fixes_sigma)
+    d = drive_from_columns(cols, source=f"sim-{scenario}-{seed}")
+    return jm.Inputs(*(jnp.asarray(np.asarray(v, np.float64)) for v in d.inputs)), truth
+
+
+def _wrapped(a):
+    return np.angle(np.exp(1j * np.asarray(a)))
+
+
+def _rmse(out, truth, skip_s=60.0):
+    t = truth["time_s"]
+    m = t >= t[0] + skip_s
+    h = math.degrees(float(np.sqrt(np.mean(_wrapped(np.asarray(out.heading) - truth["heading_rad"])[m] ** 2))))
+    pos = float(np.sqrt(np.mean(((np.asarray(out.x) - truth["x_m"]) ** 2 + (np.asarray(out.y) - truth["y_m"]) ** 2)[m])))
+    return h, pos
+
+
+def test_covariance_symmetric_positive_definite_over_one_hour():
+    inputs, _ = _sim("mixed", 3600.0, 21, 4.0)
+    p = jm.make_params()
+
+    @jax.jit
+    def covs(p, inputs):
+        def body(s, x):
+            s, _ = step(p, s, x, KALMAN)
+            return s, s.kalman.cov
+        return jax.lax.scan(body, init_state(p), inputs)[1]
+
+    c = np.asarray(covs(p, inputs))
+    assert c.shape == (inputs.time_s.shape[0], 5, 5)
+    assert np.all(np.isfinite(c))
+    np.testing.assert_array_equal(c, np.swapaxes(c, 1, 2))  # symmetrized every step: exactly symmetric
+    eig = np.linalg.eigvalsh(c)
+    assert np.all(eig > 0.0), eig.min()
+    # conditioning stays sane (no state collapses to a zero variance)
+    assert np.min(eig[:, 0]) > 1e-14
+
+
+def test_runs_without_fixes_on_the_compass_alone():
+    inputs, truth = _sim("urban", 600.0, 22)  # no fix columns: fix_valid = 0
+    assert float(jnp.max(inputs.fix_valid)) == 0.0
+    p = jm.make_params()
+    kal = jm.run(p, inputs, KALMAN)
+    comp = jm.run(p, inputs, jm.Config(mode="compass"))
+    odo = jm.run(p, inputs, jm.Config(mode="odometer"))
+    assert all(np.all(np.isfinite(np.asarray(v))) for v in (kal.heading, kal.x, kal.y))
+    h_kal, _ = _rmse(kal, truth)
+    assert h_kal < _rmse(comp, truth)[0] and h_kal < _rmse(odo, truth)[0]
+
+
+def test_bad_fixes_are_ignored_and_a_far_first_fix_is_taken():
+    inputs, truth = _sim("urban", 300.0, 23, 4.0)
+    p = jm.make_params()
+    ref = jm.run(p, inputs, KALMAN)
+    # NaN fixes flagged valid are skipped
+    fv = np.asarray(inputs.fix_valid)
+    bad = inputs._replace(fix_east_m=jnp.where(fv > 0.5, jnp.nan, inputs.fix_east_m),
+                          fix_north_m=jnp.where(fv > 0.5, jnp.nan, inputs.fix_north_m))
+    out = jm.run(p, bad, KALMAN)
+    assert np.all(np.isfinite(np.asarray(out.x))) and np.all(np.isfinite(np.asarray(out.heading)))
+    # an outlier fix (500 m off) in the middle of the drive moves the position by little
+    k = int(np.flatnonzero(fv > 0.5)[150])
+    jump = inputs._replace(fix_east_m=inputs.fix_east_m.at[k].add(500.0))
+    out = jm.run(p, jump, KALMAN)
+    assert float(jnp.max(jnp.abs(out.x - ref.x))) < 20.0
+    # fixes in a frame 300 m away from the dead-reckoned start: the first fix is taken, the rest follow
+    shifted = inputs._replace(fix_east_m=inputs.fix_east_m + 300.0)
+    out = jm.run(p, shifted, KALMAN)
+    east_err = np.asarray(out.x) - (truth["x_m"] + 300.0)
+    assert np.sqrt(np.mean(east_err[len(east_err) // 2:] ** 2)) < 10.0
+
+
+def test_batch_equals_loop():
+    a, _ = _sim("urban", 120.0, 24, 4.0)
+    b, _ = _sim("urban", 120.0, 25, 4.0)
+    n = min(a.time_s.shape[0], b.time_s.shape[0])
+    a = jm.Inputs(*(v[:n] for v in a))
+    b = jm.Inputs(*(v[:n] for v in b))
+    p = jm.make_params()
+    batch = jm.run_batch(p, jm.Inputs(*(jnp.stack([u, v]) for u, v in zip(a, b))), KALMAN)
+    for i, inp in enumerate((a, b)):
+        one = jm.run(p, inp, KALMAN)
+        np.testing.assert_allclose(np.asarray(batch.heading[i]), np.asarray(one.heading), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(batch.x[i]), np.asarray(one.x), rtol=0, atol=1e-9)
+
+
+def test_gradients_finite():
+    inputs, truth = _sim("urban", 300.0, 26, 4.0)
+    ref = jnp.asarray(truth["heading_rad"])
+    base = jm.make_params()
+    keys = [k for k in jm.PARAMETER_KEYS if k.startswith("kf_")] + ["a", "T_F", "P", "B"]
+
+    def loss(theta):
+        out = jm.run(base._replace(**theta), inputs, KALMAN)
+        return jnp.mean(1.0 - jnp.cos(out.heading - ref))
+
+    g = jax.grad(loss)({k: getattr(base, k) for k in keys})
+    for k, v in g.items():
+        assert np.isfinite(float(v)), k
+    for k in ("kf_compass_sigma_deg", "kf_fix_sigma_m", "kf_gm_sigma_deg", "kf_drift_psd", "kf_compass_corr_m"):
+        assert float(g[k]) != 0.0, k
+
+
+@pytest.mark.slow
+def test_bar_15_minute_urban_drive_with_fixes():
+    """Issue 3 bar: heading RMSE <= complementary's; position RMSE <= half of dead reckoning's."""
+    inputs, truth = _sim("urban", 900.0, 1, 4.0)
+    p = jm.make_params()
+    h_kal, pos_kal = _rmse(jm.run(p, inputs, KALMAN), truth)
+    h_comp, pos_comp = _rmse(jm.run(p, inputs, jm.Config()), truth)
+    _, pos_odo = _rmse(jm.run(p, inputs, jm.Config(mode="odometer")), truth)
+    assert h_kal <= h_comp, (h_kal, h_comp)
+    assert pos_kal <= 0.5 * min(pos_comp, pos_odo), (pos_kal, pos_comp, pos_odo)

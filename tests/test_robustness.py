@@ -42,7 +42,7 @@ def hostile_drives(draw):
                           fix_east_m=cx * 10, fix_north_m=cy * 10, fix_valid=flags)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(hostile_drives(), st.sampled_from(jm.MODES))
 def test_no_input_makes_a_nan_heading(inputs, mode):
     out = _run_all[mode](jm.make_params(), inputs)
