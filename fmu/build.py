@@ -90,6 +90,8 @@ OUTPUT_META: dict[str, tuple[str, str | None, str]] = {
     "map_used": ("1", None, "1 if the map heading replaced the compass in this sample (FIG. 8F)"),
     "dpp_ratio": ("1", None, "current dpp_right / dpp_left of the left/right calibration (EP 0619873)"),
     "distance": ("m", "km", "distance travelled"),
+    "initialized": ("1", None, "1 once a valid compass sample has started the heading (before that the heading "
+                               "outputs are 0 and meaningless)"),
 }
 
 # FMI names must be unique: the output ``a`` (the current, refined velocity coefficient) would
@@ -310,7 +312,7 @@ def check_drive(n: int = 1500, seed: int = 7) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     t = np.cumsum(np.full(n, 0.1)) - 0.1
     speed = 12.0 + 8.0 * np.sin(t / 23.0)
-    speed[300:340] = 0.0
+    speed[300:340] = 0.0  # a stop (slices beyond n are empty)
     speed[600:650] = -1.5  # reversing
     curv = 0.03 * np.sin(t / 9.0) + 0.08 * (np.abs(((t - 40.0) % 60.0) - 5.0) < 3.0)
     ds = speed * 0.1
@@ -320,11 +322,12 @@ def check_drive(n: int = 1500, seed: int = 7) -> dict[str, Any]:
     right = np.cumsum(ds - 0.5 * dD) / 0.02
     left = np.mod(np.floor(left + 61000.0), 65536.0)
     right = np.mod(np.floor(right + 30000.0), 65536.0)
-    right[900] = right[899] + 7000.0  # a counter glitch
+    if n > 900:
+        right[900] = right[899] + 7000.0  # a counter glitch
     field = 20.0 + 4.0 * np.exp(-((t - 80.0) / 5.0) ** 2)
     cx = field * np.cos(heading) + rng.normal(0.0, 0.3, n)
     cy = field * np.sin(heading) + rng.normal(0.0, 0.3, n)
-    cx[[200, 201, 777]] = np.nan
+    cx[[k for k in (200, 201, 777) if k < n]] = np.nan
     zeros = np.zeros(n)
     return dict(time_s=t, left_pulses=left, right_pulses=right, compass_x=cx, compass_y=cy,
                 map_heading=zeros, map_valid=zeros, compass_unreliable_area=zeros, fix_east_m=zeros,

@@ -6,9 +6,10 @@
 * :func:`replay` steps a recorded drive (columns in ``jaxmodel.Inputs`` names) through the
   estimator FMU, one sample per ``fmi2DoStep``: sample 0 is set in initialization mode, sample
   k before ``doStep(t[k-1], t[k] - t[k-1])`` (the FMU stamps it ``t + h``).
-* :func:`cosimulate` connects the VehicleSensors FMU to the OdoCompass FMU, Gauss-Seidel: the
-  vehicle steps to ``t + h`` first, its sensor outputs become the estimator's inputs for the
-  same step, so the estimate at ``t + h`` is compared with the truth at ``t + h``.
+* :class:`Master` steps any set of connected FMUs, fixed-step Gauss-Seidel; :func:`cosimulate`
+  connects the VehicleSensors FMU to the OdoCompass FMU with it: the vehicle steps to ``t + h``
+  first, its sensor outputs become the estimator's inputs for the same step, so the estimate at
+  ``t + h`` is compared with the truth at ``t + h``.
 * :func:`demo_cosimulation` builds both FMUs if needed, runs the co-simulation and the SSP
   variant, writes a plot of estimated against true heading, and returns the time series.
 
@@ -275,49 +276,103 @@ class CosimResult:
         return float(np.sqrt(np.mean(self.heading_error_deg()[m] ** 2)))
 
 
+class Master:
+    """Fixed-step Gauss-Seidel master over named :class:`Slave` components.
+
+    ``connections`` are ``(source, output, target, input)``; ``order`` is the stepping order (default:
+    the order of ``components``).  Each step, every component in turn gets its connected inputs from
+    the current outputs of its sources -- components earlier in the order are already at ``t + h``,
+    later ones still at ``t`` -- plus the external inputs at ``t``, then ``doStep(t, h)``.  A discarded
+    step is counted per component and the master goes on (the OdoCompass FMU leaves its state as
+    it was; its next step sees the new sample).
+    """
+
+    def __init__(self, components: Mapping[str, Slave], connections: Sequence[tuple[str, str, str, str]],
+                 order: Sequence[str] | None = None):
+        self.components = dict(components)
+        self.order = list(order or self.components)
+        self.incoming: dict[str, list[tuple[str, str, str]]] = {name: [] for name in self.components}
+        for src, out, dst, inp in connections:
+            self.incoming[dst].append((src, out, inp))
+        self.discarded = {name: 0 for name in self.components}
+
+    def _inputs_of(self, name, external):
+        values = {inp: self.components[src].get([out])[out] for src, out, inp in self.incoming[name]}
+        values.update(external.get(name, {}))
+        return values
+
+    def initialize(self, start_time: float, stop_time: float | None = None,
+                   parameters: Mapping[str, Mapping[str, Any]] | None = None,
+                   external: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+        """Initialize in order; each component's initial inputs come from its (already initialized) sources."""
+        for name in self.order:
+            self.components[name].initialize(start_time, (parameters or {}).get(name),
+                                             self._inputs_of(name, external or {}), stop_time)
+
+    def step(self, t: float, h: float, external: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+        for name in self.order:
+            c = self.components[name]
+            values = self._inputs_of(name, external or {})
+            if values:
+                c.set(values)
+            if not c.step(t, h):
+                self.discarded[name] += 1
+
+    def run(self, start_time: float, stop_time: float, step: float,
+            external: Callable[[float], Mapping[str, Mapping[str, Any]]] | None = None,
+            record: Sequence[tuple[str, str]] = (), parameters: Mapping[str, Mapping[str, Any]] | None = None,
+            ) -> dict[str, np.ndarray]:
+        """Initialize, step to ``stop_time``; returns ``time`` and ``component.variable`` series."""
+        n = int(round((stop_time - start_time) / step))
+        times = start_time + step * np.arange(n + 1)
+        ext = external or (lambda t: {})
+        self.initialize(start_time, stop_time, parameters, ext(start_time))
+        rec = {f"{c}.{v}": np.empty(n + 1) for c, v in record}
+        by_comp: dict[str, list[str]] = {}
+        for c, v in record:
+            by_comp.setdefault(c, []).append(v)
+
+        def sample(k):
+            for c, names in by_comp.items():
+                vals = self.components[c].get(names)
+                for v in names:
+                    rec[f"{c}.{v}"][k] = vals[v]
+
+        sample(0)
+        for k in range(1, n + 1):
+            t = float(times[k - 1])
+            self.step(t, step, ext(t))
+            sample(k)
+        rec["time"] = times
+        return rec
+
+
 def cosimulate(estimator_fmu: str | Path, vehicle_fmu: str | Path, stop_time: float = 600.0, step: float = 0.1,
                profile: Callable[[float], tuple[float, float]] = demo_profile,
                estimator_parameters: Mapping[str, Any] | None = None,
                vehicle_parameters: Mapping[str, Any] | None = None, start_time: float = 0.0) -> CosimResult:
     """Run VehicleSensors -> OdoCompass (Gauss-Seidel, fixed step) from ``start_time`` to ``stop_time``."""
-    n = int(round((stop_time - start_time) / step))
-    times = start_time + step * np.arange(n + 1)
     with Slave(vehicle_fmu, "vehicle") as veh, Slave(estimator_fmu, "estimator") as est:
-        steer, speed = profile(start_time)
-        veh.initialize(start_time, vehicle_parameters, {"steering_angle": steer, "speed": speed}, stop_time)
-        sensor_names = [a for a, _ in VEHICLE_TO_ESTIMATOR]
-        truth_names = ["true_heading", "x", "y", "true_speed"]
-        v0 = veh.get(sensor_names + truth_names)
-        est.initialize(start_time, estimator_parameters, {b: v0[a] for a, b in VEHICLE_TO_ESTIMATOR}, stop_time)
-        e_vr = [est.vr[n_] for n_ in ESTIMATOR_OUTPUTS]
-        rec = {k: np.empty(n + 1) for k in ("true_heading", "true_x", "true_y", "true_speed", *ESTIMATOR_OUTPUTS)}
-        rec["steering_angle"] = np.empty(n + 1)
-        rec["speed_command"] = np.empty(n + 1)
+        master = Master({"vehicle": veh, "estimator": est},
+                        [("vehicle", a, "estimator", b) for a, b in VEHICLE_TO_ESTIMATOR])
 
-        def record(k, vv, ev, steer_, speed_):
-            rec["true_heading"][k], rec["true_x"][k] = vv["true_heading"], vv["x"]
-            rec["true_y"][k], rec["true_speed"][k] = vv["y"], vv["true_speed"]
-            for j, name in enumerate(ESTIMATOR_OUTPUTS):
-                rec[name][k] = ev[j]
-            rec["steering_angle"][k], rec["speed_command"][k] = steer_, speed_
-
-        record(0, v0, est.fmu.getReal(e_vr), steer, speed)
-        discarded = 0
-        t = start_time
-        for k in range(1, n + 1):
-            t = float(times[k - 1])
+        def external(t):
             steer, speed = profile(t)
-            veh.set({"steering_angle": steer, "speed": speed})
-            if not veh.step(t, step):
-                raise RuntimeError(f"vehicle FMU discarded the step at t={t}: {veh.messages[-3:]}")
-            vv = veh.get(sensor_names + truth_names)
-            est.set({b: vv[a] for a, b in VEHICLE_TO_ESTIMATOR})
-            if not est.step(t, step):
-                discarded += 1
-            record(k, vv, est.fmu.getReal(e_vr), steer, speed)
+            return {"vehicle": {"steering_angle": steer, "speed": speed}}
+
+        record = [("vehicle", v) for v in ("true_heading", "x", "y", "true_speed", "steering_angle", "speed")]
+        record += [("estimator", v) for v in ESTIMATOR_OUTPUTS]
+        rec = master.run(start_time, stop_time, step, external, record,
+                         {"vehicle": vehicle_parameters or {}, "estimator": estimator_parameters or {}})
+        if master.discarded["vehicle"]:
+            raise RuntimeError(f"the vehicle FMU discarded {master.discarded['vehicle']} steps: {veh.messages[-3:]}")
         end = est.time
         messages = [("vehicle", *m) for m in veh.messages] + [("estimator", *m) for m in est.messages]
-    return CosimResult(times, rec["true_heading"], rec["heading"], rec, discarded, messages, float(end))
+    series = {"true_heading": rec["vehicle.true_heading"], "true_x": rec["vehicle.x"], "true_y": rec["vehicle.y"],
+              "true_speed": rec["vehicle.true_speed"], "steering_angle": rec["vehicle.steering_angle"],
+              "speed_command": rec["vehicle.speed"], **{v: rec[f"estimator.{v}"] for v in ESTIMATOR_OUTPUTS}}
+    return CosimResult(rec["time"], series["true_heading"], series["heading"], series,
+                       master.discarded["estimator"], messages, float(end))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -380,13 +435,16 @@ def plot_headings(result: CosimResult, path: str | Path, title: str = "OdoCompas
 def demo_cosimulation(out_dir: str | Path, estimator_fmu: str | Path | None = None,
                       vehicle_fmu: str | Path | None = None, params=None, stop_time: float = 600.0,
                       step: float = 0.1, with_ssp: bool = True, vehicle_parameters: Mapping[str, Any] | None = None,
-                      fmu_dir: str | Path | None = None) -> dict[str, Any]:
+                      fmu_dir: str | Path | None = None, true_params=None) -> dict[str, Any]:
     """Co-simulate VehicleSensors -> OdoCompass, plot estimated vs true heading into ``out_dir``.
 
-    Builds the FMUs into ``fmu_dir`` (default: ``out_dir``) when paths are not given; ``params``
-    are the estimator's start values and the vehicle's true parameters.  Returns a dict with the
-    time series (``time``, ``true_heading``, ``heading``, ...), the RMSE after the first minute
-    (deg), the end times, the plot path and, with ``with_ssp``, the SSP run's figures.
+    Builds the FMUs into ``fmu_dir`` (default: ``out_dir``) when paths are not given: the estimator
+    with ``params`` as start values (e.g. an identified parameter file), the vehicle with
+    ``true_params`` (default: ``params``) as its true parameters.  ``vehicle_parameters`` override
+    the vehicle FMU's other parameters (seed, anomaly density, ...).  Returns a dict with the time
+    series (``time``, ``true_heading``, ``heading``, ``series``), ``rmse_deg`` after the first
+    minute, ``end_time``, ``discarded``, the plot path (``fmu_cosim_heading.png``) and, with
+    ``with_ssp``, ``ssp_path``, ``ssp_end_time`` and ``ssp_rmse_deg``.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -397,7 +455,7 @@ def demo_cosimulation(out_dir: str | Path, estimator_fmu: str | Path | None = No
         if estimator_fmu is None:
             estimator_fmu = build.build_estimator(fmu_dir / "OdoCompass.fmu", params)
         if vehicle_fmu is None:
-            vehicle_fmu = build.build_vehicle(fmu_dir / "VehicleSensors.fmu", params)
+            vehicle_fmu = build.build_vehicle(fmu_dir / "VehicleSensors.fmu", params if true_params is None else true_params)
     vp = {"anomaly_density_per_km2": 3.0, "transient_rate_per_s": 1.0 / 90.0, "seed": 1}
     vp.update(vehicle_parameters or {})
     result = cosimulate(estimator_fmu, vehicle_fmu, stop_time, step, vehicle_parameters=vp)
@@ -411,7 +469,7 @@ def demo_cosimulation(out_dir: str | Path, estimator_fmu: str | Path | None = No
         from .ssp import write_ssp
 
         ssp_path = write_ssp(out_dir / "VehicleOdoCompass.ssp", vehicle_fmu, estimator_fmu, stop_time=stop_time,
-                             step=step)
+                             step=step, vehicle_parameters=vp)
         ssp_rows = run_ssp(ssp_path, stop_time, step)
         err = np.degrees(wrap(ssp_rows["estimator.heading"][1:] - ssp_rows["vehicle.true_heading"][:-1]))
         m = ssp_rows["time"][1:] >= 60.0

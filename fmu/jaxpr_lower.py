@@ -85,21 +85,21 @@ def _rem(a, b):
 
 def _floor(x):
     try:
-        return float(math.floor(x))
+        return float(math.floor(x)) or x * 0.0
     except (ValueError, OverflowError):
         return x
 
 
 def _ceil(x):
     try:
-        return float(math.ceil(x))
+        return float(math.ceil(x)) or x * 0.0
     except (ValueError, OverflowError):
         return x
 
 
 def _round_even(x):
     try:
-        return float(round(x))
+        return float(round(x)) or x * 0.0
     except (ValueError, OverflowError):
         return x
 
@@ -331,8 +331,9 @@ IDENTITY = T("{0}")
 _FLOAT_UNARY = {
     "neg": T("(-{0})"), "abs": T("abs({0})", "fabs({0})"), "sign": T("_sign({0})", "odc_sign({0})"),
     # |x| >= 2**52 is already integral; NaN and +-inf fail the comparison and pass through
-    "floor": T("(float(_mfloor({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "floor({0})"),
-    "ceil": T("(float(_mceil({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "ceil({0})"),
+    # (... or x * 0.0): a zero result keeps the sign of x, as IEEE floor/ceil/rint do
+    "floor": T("((float(_mfloor({0})) or {0} * 0.0) if -4.5e15 < {0} < 4.5e15 else {0})", "floor({0})"),
+    "ceil": T("((float(_mceil({0})) or {0} * 0.0) if -4.5e15 < {0} < 4.5e15 else {0})", "ceil({0})"),
     "is_finite": T("({0} - {0} == 0.0)", "(isfinite({0}) != 0)"), "exp": T("_exp({0})", "exp({0})"),
     "exp2": T("_exp2({0})", "exp2({0})"), "expm1": T("_expm1({0})", "expm1({0})"),
     "log": T("_log({0})", "log({0})"), "log1p": T("_log1p({0})", "log1p({0})"),
@@ -379,7 +380,7 @@ _CONVERT = {
     ("bool", "float"): T("(1.0 if {0} else 0.0)", "(({0}) ? 1.0 : 0.0)"),
     ("bool", "int"): T("(1 if {0} else 0)", "(({0}) ? 1LL : 0LL)"),
 }
-_ROUND_EVEN = T("(float(round({0})) if -4.5e15 < {0} < 4.5e15 else {0})", "nearbyint({0})")
+_ROUND_EVEN = T("((float(round({0})) or {0} * 0.0) if -4.5e15 < {0} < 4.5e15 else {0})", "nearbyint({0})")
 _ROUND_AWAY = T("_round_away({0})", "round({0})")
 _INDEX = T("{0}[{1}]")
 

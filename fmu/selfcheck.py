@@ -42,7 +42,7 @@ def _drive(n: int | None = None, clean: bool = True) -> dict[str, np.ndarray]:
     if clean:  # no NaN compass, no counter glitch
         d["compass_x"] = np.where(np.isfinite(d["compass_x"]), d["compass_x"], 20.0)
         d["right_pulses"] = d["right_pulses"].copy()
-        d["right_pulses"][900] = d["right_pulses"][899]
+        d["right_pulses"][900] = d["right_pulses"][899]  # check_drive() has 1500 samples
     if n is not None:
         d = {k: v[:n] for k, v in d.items()}
     return d

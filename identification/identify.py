@@ -55,6 +55,8 @@ KEY_HINTS = {
     "T_C": "T_C acts only through the online refinement of a (turns over 45 deg at 15-45 mph with a consistent "
            "compass, refine_a on); a was refined {refinements} times on these drives",
     "a": "a acts through a V² at speed in turns; these drives reach {vmax:.1f} m/s (99.5th percentile)",
+    "D_N": "D_N sets the complementary filter's distance constant; until a drive has covered about D_N/F metres "
+           "the start-up gain (1/distance driven) governs instead; the longest training drive is {dmax:.0f} m",
 }
 
 
@@ -127,7 +129,7 @@ def _median_dt(time_s: np.ndarray) -> float:
 class _Evaluator:
     """One compiled forward pass over every drive (train + validation) for RMSEs and plots."""
 
-    FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a")
+    FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance")
 
     def __init__(self, drives, config):
         import jax
@@ -321,14 +323,28 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     vmax = float(np.percentile(speed, 99.5)) if speed.size else 0.0
     a_tr = ev_after["a"][: len(train)]
     refinements = int(np.sum(np.abs(np.diff(a_tr, axis=-1)) > 0))
+    dmax = float(np.max(ev_after["distance"][: len(train)], initial=0.0))
+    vector_done = set()
     for label, row in param_rows.items():
-        if row["status"] == "not identifiable":
-            key = label.split("[")[0]
-            why = "the loss does not depend on it with these drives and settings" if not row["data_signal"] else \
-                f"posterior std = {row['posterior_to_prior_std']:.2f} x prior std"
-            hint = KEY_HINTS.get(key, "").format(cmax=cmax, vmax=vmax, refinements=refinements)
-            warnings.append(f"{label} is not identifiable from these drives ({why}); kept at the starting value "
-                            f"{row['start']:.6g}" + (f". {hint}" if hint else ""))
+        if row["status"] != "not identifiable":
+            continue
+        key = label.split("[")[0]
+        if "[" in label:  # one line per vector key (the deviation table)
+            if key in vector_done:
+                continue
+            vector_done.add(key)
+            entries = [lb for lb, r in param_rows.items() if lb.split("[")[0] == key]
+            bad = [lb for lb in entries if param_rows[lb]["status"] == "not identifiable"]
+            idx = ", ".join(lb[len(key) + 1:-1] for lb in bad)
+            warnings.append(f"{key}: {len(bad)} of {len(entries)} entries are not identifiable from these drives "
+                            f"(posterior std >= {R.NOT_IDENTIFIABLE_RATIO} x prior std): [{idx}]; kept at their "
+                            f"starting values")
+            continue
+        why = "the loss does not depend on it with these drives and settings" if not row["data_signal"] else \
+            f"posterior std = {row['posterior_to_prior_std']:.2f} x prior std"
+        hint = KEY_HINTS.get(key, "").format(cmax=cmax, vmax=vmax, refinements=refinements, dmax=dmax)
+        warnings.append(f"{label} is not identifiable from these drives ({why}); kept at the starting value "
+                        f"{row['start']:.6g}" + (f". {hint}" if hint else ""))
     full_corr = np.full((len(corr_labels), len(corr_labels)), np.nan)
     i0 = 0
     for block in corr_blocks:

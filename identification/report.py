@@ -94,9 +94,8 @@ def format_summary(report: dict) -> str:
         lines.append("")
         lines.append(f"{'drive':44s} {'RMSE before':>11s} {'RMSE after':>11s}   ({heading}, deg)")
         for row in drives:
-            name = f"{row['role']}: {row['name']}"
-            if len(name) > 44:
-                name = "..." + name[-41:]
+            shown = row["name"] if len(row["name"]) <= 34 else "..." + row["name"][-31:]
+            name = f"{row['role']}: {shown}"
             lines.append(f"{name:44s} {row['rmse_before_deg']:11.3f} {row['rmse_after_deg']:11.3f}")
     lines.append("")
     lines.append(f"iterations {report.get('iterations')}, objective evaluations {report.get('evaluations')}, "

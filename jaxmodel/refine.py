@@ -30,13 +30,15 @@ class RefineState(NamedTuple):
     straight_run: jnp.ndarray    # straight distance since the turn, m
     turn_active: jnp.ndarray     # 1.0 while a turn is being measured
     turn_angle: jnp.ndarray      # accumulated wheel heading change of the turn, rad
-    gates_ok: jnp.ndarray        # 1.0 while gates (2) and (3) hold
+    gates_ok: jnp.ndarray        # 1.0 while gate (2) holds
+    turn_samples: jnp.ndarray    # samples with a valid compass since the turn began
+    turn_bad_samples: jnp.ndarray  # of which E_C exceeded refine_compass_max_error_deg
     updates: jnp.ndarray         # number of accepted refinements
 
 
 def init_refine_state():
     z = jnp.zeros((), jnp.float64)
-    return RefineState(z, z, z, z, z, z, jnp.ones((), jnp.float64), z)
+    return RefineState(z, z, z, z, z, z, jnp.ones((), jnp.float64), z, z, z)
 
 
 def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, compass_ok, enabled):
@@ -62,8 +64,15 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     active_now = active | starts
     turn_angle = jnp.where(starts, alpha, jnp.where(active, rs.turn_angle + alpha, 0.0))
     gates_ok = jnp.where(starts, 1.0, rs.gates_ok)
-    gate_fail = active_now & (~compass_good | (turning & ~speed_ok))
+    gate_fail = active_now & turning & ~speed_ok
     gates_ok = jnp.where(gate_fail, 0.0, gates_ok)
+    # Gate (3), "consistent compass measurements": single samples above the bound are normal
+    # (noise, body roll), so the turn passes when at most refine_compass_bad_fraction of its
+    # compass samples exceed it.
+    counted = active_now & compass_ok
+    turn_samples = jnp.where(starts, 0.0, rs.turn_samples) + jnp.where(counted, 1.0, 0.0)
+    turn_bad = jnp.where(starts, 0.0, rs.turn_bad_samples) + jnp.where(counted & ~compass_good, 1.0, 0.0)
+    compass_consistent = turn_bad <= params.refine_compass_bad_fraction * turn_samples
 
     # After the turn: average the offset over the straight run; turning again restarts it.
     in_run = active_now & (~turning)
@@ -76,7 +85,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     ends = active_now & (straight_run >= params.straight_distance_m)
     mean_shift = safe_div(after_sum, after_weight)  # off_after - off_before
     big_turn = jnp.abs(turn_angle) >= deg(params.refine_turn_min_deg)
-    accept = ends & big_turn & (gates_ok > 0.5) & (after_weight > 0.5 * straight_run)
+    accept = ends & big_turn & (gates_ok > 0.5) & compass_consistent & (after_weight > 0.5 * straight_run)
     error = jnp.where(turn_angle >= 0.0, -mean_shift, mean_shift)  # eq. (11)
     error = jnp.clip(error, -deg(params.refine_M_deg), deg(params.refine_M_deg))  # eq. (12)
     a_new = jnp.where(accept, a + error / params.T_C, a)  # eq. (13)
@@ -90,6 +99,8 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
         turn_active=jnp.where(ends, 0.0, jnp.where(active_now, 1.0, 0.0)),
         turn_angle=jnp.where(ends, 0.0, turn_angle),
         gates_ok=jnp.where(ends, 1.0, gates_ok),
+        turn_samples=jnp.where(ends, 0.0, turn_samples),
+        turn_bad_samples=jnp.where(ends, 0.0, turn_bad),
         updates=rs.updates + jnp.where(accept, 1.0, 0.0),
     )
     return new, a_new

@@ -414,3 +414,12 @@ def test_two_builds_with_different_start_values_in_one_process(fmus, tmp_path):
     assert float(np.max(np.abs(wrap(got["a"] - np.asarray(ref_a))))) <= 1e-9
     assert float(np.max(np.abs(wrap(got["b"] - np.asarray(ref_b))))) <= 1e-9
     assert float(np.max(np.abs(wrap(got["a"] - got["b"])))) > 1e-3
+
+
+def test_every_jaxmodel_input_and_output_has_fmu_metadata():
+    """A new field of jaxmodel.Inputs/Outputs needs its FMU unit and description in fmu/build.py."""
+    import jaxmodel
+    from fmu.build import INPUT_META, OUTPUT_META
+
+    assert [f for f in jaxmodel.Inputs._fields if f != "time_s" and f not in INPUT_META] == []
+    assert [f for f in jaxmodel.Outputs._fields if f not in OUTPUT_META] == []

@@ -124,7 +124,7 @@ def test_gradients_of_a_heading_loss_match_finite_differences():
     inputs = inputs_of(d)
     truth = jnp.asarray(d["true_heading"])
     names = ("P", "B", "T_F", "a", "T_C", "D_N")
-    scale = jnp.array([0.125, 2.7, 1.55, 1e-4, 3000.0, 400.0])
+    scale = jnp.array([0.125, 2.7, 1.55, 1e-4, 20000.0, 4500.0])
     base = jm.make_params(a=1.3e-4)  # a off the truth so refinement acts and T_C matters
 
     def loss(u):  # u: relative parameter values (1 = nominal), so FD steps are well scaled
