@@ -58,8 +58,6 @@ import jax.numpy as jnp
 from .angles import safe_div, wrap
 from .params import deg
 
-import os
-GMC = float(os.environ.get('GMC', '1'))
 N_STATES = 5
 I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
 H_COMPASS = jnp.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
@@ -108,8 +106,8 @@ def transition(params, dt, s, course, alpha=0.0):
         jnp.stack([e1, z, z, z, z]),
         jnp.stack([z, one, dt, z, z]),
         jnp.stack([z, z, one, z, z]),
-        jnp.stack([-GMC * s * sn, -s * sn, z, one, z]),
-        jnp.stack([GMC * s * cs, s * cs, z, z, one]),
+        jnp.stack([z, -s * sn, z, one, z]),
+        jnp.stack([z, s * cs, z, z, one]),
     ])
     q11 = sig_gm2 * (1.0 - e1 * e1)
     q22 = q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s) + (params.kf_turn_sigma * alpha) ** 2
@@ -214,7 +212,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     err = jnp.where(active, ks.err, 0.0)
     cov = jnp.where(active, ks.cov, p0)
     err = err.at[I_DRIFT].add(jnp.where(active & ~course_ok, alpha, 0.0))
-    course_est = GMC * err[I_GM] + err[I_DRIFT]
+    course_est = err[I_DRIFT]
     course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
     phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0))
     err_p, cov_p = predict(err, cov, phi, q)
@@ -222,7 +220,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     cov_p = jnp.where(active, cov_p, cov)
 
     # 3. Position computer with the corrected course.
-    course_mid = wrap(wheel_heading - 0.5 * alpha - (GMC * err_p[I_GM] + err_p[I_DRIFT]))
+    course_mid = wrap(wheel_heading - 0.5 * alpha - err_p[I_DRIFT])
     north = ks.y + s * jnp.cos(course_mid)
     east = ks.x + s * jnp.sin(course_mid)
 
@@ -247,7 +245,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     east = east - err_u[I_E]
     err_u = err_u.at[I_N].set(0.0).at[I_E].set(0.0)
 
-    heading = jnp.where(active, wrap(wheel_heading - (GMC * err_u[I_GM] + err_u[I_DRIFT])), wheel_heading)
+    heading = jnp.where(active, wrap(wheel_heading - err_u[I_DRIFT]), wheel_heading)
     new = KalmanState(
         x=east, y=north,
         err=jnp.where(active, err_u, jnp.zeros_like(err_u)),
