@@ -2,7 +2,7 @@
 urban, parking; 40 minutes in all) of a vehicle whose parameters differ from the starting file,
 validated on two held-out drives.
 
-    .venv/bin/python bench/bench_identify.py [--fit P,B,T_F,a,T_C,D_N,curvature_window_m] [--seed 0] [--keep DIR]
+    .venv/bin/python bench/bench_identify.py [--fit P,B,T_F,a,T_C,D_N] [--seed 0] [--keep DIR]
 
 The identify run is a subprocess, so its wall time includes interpreter start-up, imports,
 reading the CSV logs and every compilation.  Checked against the truth:
@@ -50,7 +50,7 @@ def rmse_deg(heading_deg, ref_rad):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fit", default="P,B,T_F,a,T_C,D_N,curvature_window_m")
+    ap.add_argument("--fit", default="P,B,T_F,a,T_C,D_N", help="default: the default fit set of identify")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", default=None, help="keep drives, fitted file and plots in this folder")
     args = ap.parse_args()

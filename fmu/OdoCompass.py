@@ -10,9 +10,10 @@ Behaviour (docs/fmu.md has the full story):
 
 * Every ``fmi2DoStep(t, h)`` processes ONE sensor sample: the input values present at the call,
   time-stamped ``t + h`` (the sample taken at the end of the communication interval), through
-  ``jaxmodel.run_from`` -- lowered to Python by ``jaxpr_lower`` or compiled by XLA (parameter
-  ``engine``).  The sample set during initialization mode is processed at the start time in
-  ``fmi2ExitInitializationMode``, so the outputs are valid right after initialization.
+  ``jaxmodel.run_from`` as JAX traces it -- compiled to C at build time, lowered to Python at
+  initialization, or jitted by XLA (parameter ``engine``, see ``engine.py``).  The sample set
+  during initialization mode is processed at the start time in ``fmi2ExitInitializationMode``,
+  so the outputs are valid right after initialization.
 * Bad input (non-finite compass, implausible pulse counters, a zero/negative/non-finite step,
   time not advancing) is logged under a category and answered with fmi2Discard (pythonfmu
   0.7.0's ``doStep`` can return only OK or Discard): the sample is not consumed and the
@@ -35,6 +36,7 @@ import json
 import sys
 import threading
 import time
+import weakref
 from pathlib import Path
 
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
@@ -43,6 +45,7 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 BUNDLE_DIR = "odocompass_bundle"
 _LOAD_LOCK = threading.Lock()
+_LIVE = weakref.WeakSet()  # instances not yet terminated in this process
 _NAN = float("nan")
 
 
@@ -98,6 +101,8 @@ class OdoCompass(Fmi2Slave):
         self._strikes = 0  # consecutive samples refused for implausible counters
         self._discarded = 0
         self._timing: dict[str, float] = {"instantiated": time.perf_counter()}
+        with _LOAD_LOCK:
+            _LIVE.add(self)
 
         m = self._manifest
         self._x = [0.0] * len(m["sample_fields"])  # one jaxmodel.Inputs sample; slot 0 is time_s
@@ -438,7 +443,14 @@ class OdoCompass(Fmi2Slave):
             self._o = [_NAN] * len(self._o)
 
     def terminate(self):
-        pass
+        try:
+            with _LOAD_LOCK:
+                _LIVE.discard(self)
+                last = len(_LIVE) == 0
+            if last and self._engine_module is not None:
+                self._engine_module.release_for_c_host()
+        except Exception as exc:
+            self._log_exception("fmi2Terminate", exc)
 
     # -- stepping -------------------------------------------------------------------------------
     def do_step(self, current_time, step_size):

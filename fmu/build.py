@@ -343,8 +343,6 @@ def _compiler() -> str | None:
 
 def _build_native(bundle: Path, bundle_id: str, values: Mapping[str, Any], configs) -> tuple[list[dict], list[str]]:
     """Lower the bundled jaxmodel step to C per configuration, compile, and check it against jaxmodel.run."""
-    import ctypes
-
     import numpy as np
 
     from fmu.engine import Engine, local_jax_config

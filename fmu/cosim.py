@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 import shutil
-from ctypes import byref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -56,26 +55,24 @@ class Slave:
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.vr = {n: v.valueReference for n, v in self.vars.items()}
         self.messages: list[tuple[str, str, str]] = []
-        self.echo = echo
+        messages = self.messages  # the logger closes over the list, not over self (no reference cycle)
 
         def logger(component, instance, status, category, message):
+            # The message is the FMU's printf format; pythonfmu FMUs pass no arguments and escape '%'.
+            # (fmpy's addLoggerProxy, which formats, keeps ONE global target for all callback structs:
+            # with several instances it would route messages to -- and call -- the wrong, possibly
+            # freed, Python logger, so it is not used here.)
+            text = message.decode("utf-8", "replace") if message else ""
             entry = (STATUS[status] if 0 <= status < len(STATUS) else str(status),
-                     category.decode("utf-8", "replace") if category else "",
-                     message.decode("utf-8", "replace") if message else "")
-            self.messages.append(entry)
-            if self.echo:
+                     category.decode("utf-8", "replace") if category else "", text.replace("%%", "%"))
+            messages.append(entry)
+            if echo:
                 print(f"[{entry[0]}] {instance.decode() if instance else ''} {entry[1]}: {entry[2]}")
 
         self._callbacks = fmi2CallbackFunctions()
         self._callbacks.logger = fmi2CallbackLoggerTYPE(logger)
         self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
         self._callbacks.freeMemory = defaultCallbacks.freeMemory
-        try:
-            from fmpy.logging import addLoggerProxy
-
-            addLoggerProxy(byref(self._callbacks))  # formats printf-style messages like fmpy's default logger
-        except Exception:  # pragma: no cover - fmpy without the proxy library
-            pass
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=str(self.unzip_dir),
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)

@@ -408,6 +408,34 @@ class Engine:
         return Stepper("xla", step, s0, 0.0, "; ".join(notes + ["XLA executable"]))
 
 
+def python_host() -> bool:
+    """True when the process is a Python interpreter (fmpy ...), False in a C host that embeds Python
+    through pythonfmu (the FMU Compliance Checker, a C master)."""
+    import os
+
+    try:
+        return Path(os.readlink("/proc/self/exe")).name.startswith(("python", "pypy"))
+    except OSError:
+        return Path(sys.executable or "").name.startswith("python")
+
+
+def release_for_c_host() -> None:
+    """In a C host, drop JAX's compiled-computation caches once the FMU is done.
+
+    There pythonfmu calls Py_Finalize from the FMU library's destructor, after the C++ statics of
+    jaxlib are gone; cached MLIR modules destroyed that late crash the process at exit (seen with
+    the FMU Compliance Checker).  In a Python host this is never done: the caches are the host's.
+    """
+    if python_host():
+        return
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
+
+
 _ENGINES: dict[str, Engine] = {}
 _ENGINES_LOCK = threading.Lock()
 

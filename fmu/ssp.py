@@ -15,12 +15,12 @@ parameter bindings; :func:`parameter_set` turns the bindings into the ``Paramete
 from __future__ import annotations
 
 import datetime
-import math
 import zipfile
 from pathlib import Path
 from typing import Any, Mapping
-from xml.etree.ElementTree import Element, SubElement, tostring
+import xml.etree.ElementTree as ET
 from xml.dom.minidom import parseString
+from xml.etree.ElementTree import Element, SubElement, tostring
 
 from .fmi_support import UNITS
 
@@ -101,14 +101,7 @@ def write_ssp(path: str | Path, vehicle_fmu: str | Path, estimator_fmu: str | Pa
     emd = read_model_description(str(estimator_fmu))
     vp = dict(DEFAULT_VEHICLE_PARAMETERS if vehicle_parameters is None else vehicle_parameters)
     ep = dict(estimator_parameters or {})
-    for element in (ep, vp):
-        for k in element:
-            if not isinstance(k, str):
-                raise TypeError("parameter names must be strings")
-
     for prefix, uri in NS.items():
-        import xml.etree.ElementTree as ET
-
         ET.register_namespace(prefix, uri)
     root = Element(_q("ssd", "SystemStructureDescription"), {
         "version": "1.0", "name": name, "generationTool": "odocompass fmu/ssp.py",

@@ -68,6 +68,7 @@ class Stage:
     mode: str                # estimator mode of this stage
     lag_s: float             # > 0: heading changes over this many seconds; 0: absolute heading
     align: bool = False
+    lag_m: float = 0.0       # > 0: heading changes over this many metres travelled (overrides lag_s)
 
 
 def _as_drive(d):
@@ -96,13 +97,14 @@ def _drive_name(d) -> str:
     return str(d.metadata.get("path", "<columns>")) if getattr(d, "metadata", None) else "<columns>"
 
 
-def plan_stages(keys: Sequence[str], mode: str, increment_s: float) -> list[Stage]:
+def plan_stages(keys: Sequence[str], mode: str, increment_s: float, increment_m: float = 0.0) -> list[Stage]:
     if mode == "odometer":
         wheel = tuple(k for k in keys if k not in L.FILTER_KEYS)
         filt = tuple(k for k in keys if k in L.FILTER_KEYS)
         stages = []
         if wheel:
-            stages.append(Stage("wheel", wheel, "wheel_heading", "odometer", increment_s, align=increment_s <= 0))
+            stages.append(Stage("wheel", wheel, "wheel_heading", "odometer", increment_s,
+                                align=increment_s <= 0 and increment_m <= 0, lag_m=increment_m))
         if filt:
             stages.append(Stage("filter", filt, "heading", "complementary", 0.0))
         return stages
@@ -173,6 +175,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
              max_iter: int = 400, progress: bool = True, *, config=None, refine_a: bool = True,
              calibration: bool = False, track: str = "closed_form", prior_std: Mapping[str, float] | None = None,
              decorrelation_s: float = L.DEFAULT_DECORRELATION_S, increment_s: float = DEFAULT_INCREMENT_S,
+             increment_m: float = 0.0,
              gtol: float = 1e-3, ftol: float = 1e-7, derivatives: str = "auto", plots_dir=None):
     """Identify ``fit`` from ``train_drives``; returns (fitted Params, report dict).  See the module docstring.
 
@@ -210,7 +213,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
 
     inputs, ref, mask = _stack(train)
     dt = _median_dt(np.asarray(inputs.time_s))
-    stages = plan_stages(keys, mode, increment_s)
+    stages = plan_stages(keys, mode, increment_s, increment_m)
     warnings: list[str] = []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
     eval_config = jaxmodel.Config(mode=eval_mode, refine_a=refine_a, calibration=calibration, track=track)
@@ -229,11 +232,20 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         t_stage = time.perf_counter()
         cfg = jaxmodel.Config(mode=stage.mode, refine_a=refine_a, calibration=calibration, track=track)
         space = L.make_space(stage.keys, start, prior_std)
-        lag = int(round(stage.lag_s / dt)) if stage.lag_s > 0 else 0
-        tau = stage.lag_s if lag > 0 else decorrelation_s
+        prev = sample_weight = None
+        if stage.lag_m > 0:  # heading changes over a travelled distance, each sample weighted by its distance
+            lag = 0
+            dist = L.travelled_distance(inputs, start)
+            prev = L.increment_index(dist, stage.lag_m)
+            ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
+            sample_weight = jnp.asarray(ds)
+            n_eff = np.where(mask.sum(-1) > 0, np.maximum(np.sum(mask * ds, axis=-1) / stage.lag_m, 1.0), 0.0)
+        else:
+            lag = int(round(stage.lag_s / dt)) if stage.lag_s > 0 else 0
+            tau = stage.lag_s if lag > 0 else decorrelation_s
+            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, tau)
         problem = L.StageProblem(space, current, inputs, jnp.asarray(ref), jnp.asarray(mask), cfg,
-                                 stage.field_name, stage.align, L.effective_counts(np.asarray(inputs.time_s), mask, tau),
-                                 lag)
+                                 stage.field_name, stage.align, n_eff, lag, prev, sample_weight)
         use_forward = derivatives == "forward" or (derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
         gn = L.forward_value_grad_gn(problem)
         if use_forward:
@@ -297,7 +309,8 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         stage_reports.append({
             "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
             "estimator_mode": stage.mode,
-            "loss": (f"1 - cos of the heading change error over {stage.lag_s:g} s ({lag} samples)" if lag
+            "loss": (f"1 - cos of the heading change error over {stage.lag_m:g} m travelled" if stage.lag_m > 0
+                     else f"1 - cos of the heading change error over {stage.lag_s:g} s ({lag} samples)" if lag
                      else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
             "effective_errors_per_drive": [float(x) for x in problem.n_eff],
             "derivatives": "forward" if use_forward else "reverse (checkpointed)",

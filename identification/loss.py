@@ -285,19 +285,50 @@ def _circular_offset(e, w):
     return jnp.where(ok, jnp.arctan2(jnp.where(ok, s, 0.0), jnp.where(ok, c, 1.0)), 0.0)
 
 
-def residuals(e, w, align: bool, lag: int = 0):
+def residuals(e, w, align: bool, lag: int = 0, prev=None, sample_weight=None):
     """(r, w'): r = 2 sin(e'/2) (r² = 2(1 - cos e')) and its weights.
 
-    lag > 0: e' is the error of the heading *change* over ``lag`` samples, wrap(e_i - e_{i-lag}),
-    weighted where both ends are; otherwise e' = e minus the per-drive offset when ``align``."""
-    if lag > 0:
-        pad = [(0, 0)] * (e.ndim - 1) + [(lag, 0)]
-        e_prev = jnp.pad(e, pad)[..., :-lag]
-        w_prev = jnp.pad(w, pad)[..., :-lag]
-        return 2.0 * jnp.sin(0.5 * wrap(e - e_prev)), w * w_prev
+    ``prev`` (int array like e, -1 = none): e' is the error of the heading *change* since sample
+    prev_i, wrap(e_i - e_prev_i), weighted where both ends are (times ``sample_weight``); ``lag``
+    > 0 is the same with prev_i = i - lag.  Otherwise e' = e, minus the per-drive circular mean
+    when ``align``."""
+    if lag > 0 and prev is None:
+        prev = jnp.broadcast_to(jnp.arange(e.shape[-1]) - lag, e.shape)
+    if prev is not None:
+        prev = jnp.asarray(prev)
+        idx = jnp.clip(prev, 0, None)
+        e_prev = jnp.take_along_axis(e, idx, axis=-1)
+        w_prev = jnp.take_along_axis(w, idx, axis=-1)
+        w = w * w_prev * (prev >= 0)
+        if sample_weight is not None:
+            w = w * sample_weight
+        return 2.0 * jnp.sin(0.5 * wrap(e - e_prev)), w
     if align:
         e = wrap(e - _circular_offset(e, w)[:, None])
     return 2.0 * jnp.sin(0.5 * e), w
+
+
+def travelled_distance(inputs, params) -> np.ndarray:
+    """Cumulative |AD| (m) per drive from the pulse counters (counter wrap decoded), numpy (batch, N)."""
+    mod = float(params.counter_modulus)
+
+    def inc(x):
+        d = np.diff(np.asarray(x, dtype=np.float64), axis=-1, prepend=np.asarray(x, dtype=np.float64)[..., :1])
+        d = d - mod * np.round(d / mod)
+        return np.where(np.isfinite(d), d, 0.0)
+
+    ad = 0.5 * (inc(inputs.left_pulses) * float(params.dpp_left) + inc(inputs.right_pulses) * float(params.dpp_right))
+    return np.cumsum(np.abs(ad), axis=-1)
+
+
+def increment_index(coord: np.ndarray, span: float) -> np.ndarray:
+    """For each sample i the last sample j with coord_j <= coord_i - span (-1 if none), per drive."""
+    coord = np.asarray(coord, dtype=np.float64)
+    out = np.empty(coord.shape, dtype=np.int64)
+    for b in range(coord.shape[0]):
+        c = np.maximum.accumulate(coord[b])
+        out[b] = np.searchsorted(c, c - span, side="right") - 1
+    return out
 
 
 def data_term(r, w, n_eff):
@@ -333,19 +364,21 @@ class StageProblem:
     align: bool               # profile out a per-drive constant offset
     n_eff: np.ndarray | None = None  # (batch,)
     lag: int = 0              # > 0: fit heading changes over this many samples instead
+    prev: np.ndarray | None = None           # or since these samples (increment_index)
+    sample_weight: np.ndarray | None = None  # extra per-sample weights of those changes
 
     def objective(self, z, checkpoint: bool = False):
         """F(z) = D + ½|z|² (scalar); for reverse-mode differentiation."""
         p = self.space.to_params(z, self.base)
         e, w = heading_errors(p, self.inputs, self.ref, self.mask, self.config, self.field_name, checkpoint)
-        r, w = residuals(e, w, self.align, self.lag)
+        r, w = residuals(e, w, self.align, self.lag, self.prev, self.sample_weight)
         return data_term(r, w, jnp.asarray(self.n_eff)) + 0.5 * jnp.sum(z * z)
 
     def residual_fn(self, z):
         """(r, (w, e)) for forward-mode Jacobians."""
         p = self.space.to_params(z, self.base)
         e, w = heading_errors(p, self.inputs, self.ref, self.mask, self.config, self.field_name)
-        r, w = residuals(e, w, self.align, self.lag)
+        r, w = residuals(e, w, self.align, self.lag, self.prev, self.sample_weight)
         return r, (w, e)
 
 

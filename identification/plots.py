@@ -49,40 +49,53 @@ def heading_error_plot(path: Path, ev_before, ev_after, drives, roles, mode: str
     return path
 
 
-def _empirical_track(ev, drives, params, n_train: int, bins):
-    """Track implied by the data per |curvature| bin: sum s dD / sum s dpsi_ref (1 + a V²), s = sign of the
-    curvature (reference noise averages out instead of adding up)."""
-    dD_all, dpsi_all, c_all = [], [], []
+def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: float = 1.5):
+    """Track implied by the data per curvature bin: sum s dD / sum s dpsi_ref (1 + a V²).
+
+    Samples are binned by the curvature of the *reference* heading over +-half_window_m of travel
+    (times the fitted T_F(1 + aV²), to be in dD/AD units), not by the estimator's curvature: that one
+    is computed from the same quantized pulses as dD, and selecting on it biases the ratio.  s is the
+    sign of the reference heading change over the window, so noise averages out and reversing does
+    not cancel driving forwards."""
+    num, den, c_all = [], [], []
+    t_f = float(params.T_F)
     for b in range(n_train):
         inp = drives[b].inputs
         n = len(np.asarray(inp.time_s))
         mod = float(params.counter_modulus)
 
         def inc(x):
-            d = np.diff(np.asarray(x, dtype=np.float64))
+            d = np.diff(np.asarray(x, dtype=np.float64), prepend=float(np.asarray(x)[0]))
             return d - mod * np.round(d / mod)
 
         dl = inc(inp.left_pulses) * float(params.dpp_left)
         dr = inc(inp.right_pulses) * float(params.dpp_right)
         dD = dl - dr
+        dist = np.cumsum(np.abs(0.5 * (dl + dr)))
         ref = ev["ref"][b][:n]
-        dpsi = np.angle(np.exp(1j * np.diff(ref)))
-        v = ev["speed"][b][1:n]
-        a = ev["a"][b][1:n]
-        w = (ev["weight"][b][1:n] > 0) & (ev["weight"][b][:n - 1] > 0)
-        dD_all.append(dD[w])
-        dpsi_all.append(dpsi[w] * (1.0 + a[w] * v[w] ** 2))
-        c_all.append(ev["curvature"][b][1:n][w])
-    dD, dpsi, c = (np.concatenate(x) if x else np.zeros(0) for x in (dD_all, dpsi_all, c_all))
+        dpsi = np.angle(np.exp(1j * np.diff(ref, prepend=ref[0])))
+        lo = np.clip(np.searchsorted(dist, dist - half_window_m, side="left"), 0, n - 1)
+        hi = np.clip(np.searchsorted(dist, dist + half_window_m, side="right") - 1, 0, n - 1)
+        span = dist[hi] - dist[lo]
+        turn = np.angle(np.exp(1j * (ref[hi] - ref[lo])))
+        v = ev["speed"][b][:n]
+        gain = 1.0 + ev["a"][b][:n] * v * v
+        w = (ev["weight"][b][:n] > 0) & (np.roll(ev["weight"][b][:n], 1) > 0) & (span > half_window_m)
+        w[0] = False
+        c_ref = np.where(span > 0, np.abs(turn) / np.where(span > 0, span, 1.0), 0.0) * t_f * gain
+        s = np.sign(turn)
+        num.append((s * dD)[w])
+        den.append((s * dpsi * gain)[w])
+        c_all.append(c_ref[w])
+    num, den, c = (np.concatenate(x) if x else np.zeros(0) for x in (num, den, c_all))
     centers, values = [], []
-    sign = np.sign(c)
-    for lo, hi in zip(bins[:-1], bins[1:]):
-        sel = (np.abs(c) >= lo) & (np.abs(c) < hi)
-        den = np.sum(sign[sel] * dpsi[sel])
-        if lo >= 0.03 and sel.sum() > 100 and den > np.radians(180.0):
-            centers.append(0.5 * (lo + hi))
-            values.append(np.sum(sign[sel] * dD[sel]) / den)
-    return np.array(centers), np.array(values), np.abs(c)
+    for lo_c, hi_c in zip(bins[:-1], bins[1:]):
+        sel = (c >= lo_c) & (c < hi_c)
+        d = np.sum(den[sel])
+        if lo_c >= 0.02 and sel.sum() > 100 and d > np.radians(180.0):
+            centers.append(0.5 * (lo_c + hi_c))
+            values.append(np.sum(num[sel]) / d)
+    return np.array(centers), np.array(values), c
 
 
 def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Path:
@@ -101,7 +114,7 @@ def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Pat
     bins = np.linspace(0.0, c_max, 15)
     centers, values, c_data = _empirical_track(ev_after, drives, fitted, n_train, bins)
     if centers.size:
-        ax.plot(centers, values, "ko", ms=4, label="implied by the training data (binned)")
+        ax.plot(centers, values, "ko", ms=4, label="implied by the training data (binned by reference curvature)")
     ax.set_ylabel("effective track T_E, m")
     ax.set_title("US 4,788,645 eq. (14): effective track against curvature dD/AD", fontsize=10)
     ax.legend(fontsize=8)
@@ -109,7 +122,7 @@ def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Pat
     if c_data.size:
         axh.hist(c_data, bins=60, range=(0.0, c_max), color="0.5")
         axh.set_yscale("log")
-    axh.set_xlabel("|curvature| dD/AD (windowed)")
+    axh.set_xlabel("|curvature| dD/AD (training data, from the reference heading)")
     axh.set_ylabel("samples")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -14,20 +14,27 @@ N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
   stretch gives k_s = N_L / N_R (the measured relationship of claim 12).
 * Intensity (claims 5-11): w = w_compass * w_sanity.
   - w_compass = exp(-0.5 (dpsi_C / cal_compass_tolerance_deg)^2), dpsi_C the compass heading
-    change over the stretch (mean compass heading of the last window minus that of the first,
-    circular means of the valid samples).  A compass that says the stretch was not straight
-    lowers the intensity (claims 6-9).  A stretch without compass at both ends gets
-    ``cal_no_compass_weight``.
-  - w_sanity = 1 / (1 + ((k_s/k - 1) / cal_sanity_bound)^2): counts whose ratio is far from
-    the current calibration are less sane.  Seed defect: claim 11 says "increasing the
-    intensity ... responsive to determining a low level of sanity", which contradicts the
-    purpose of the check (claim 5: determining the correctness of the measured relationship);
-    we follow the intent and lower the intensity of insane counts.
-* Filter (claim 13, "filtered correction ratio"): k <- k + g w (k_s - k) with
-  g = max(1 / (cal_prior_weight + W), 1 / cal_filter_stretches), W the accumulated intensity:
-  a growing-memory average at start-up (the parameter ratio counts as cal_prior_weight
-  stretches), then an exponential filter over about cal_filter_stretches stretches.
-  k stays within cal_max_correction (relative) of the parameter ratio.
+    change over the stretch (mean compass heading of the last window minus that of the first;
+    each mean taken as offsets from the window's first valid sample, so it is wrap-safe).  A
+    compass that says the stretch was not straight lowers the intensity (claims 6-9).  A
+    stretch without compass at both ends gets ``cal_no_compass_weight``.
+  - w_sanity = 1 / (1 + ((k_s/mean - 1) / cal_sanity_bound)^2): counts whose ratio is far from
+    the filtered ratio are less sane.  Seed defect: claim 11 says "increasing the intensity ...
+    responsive to determining a low level of sanity", which contradicts the purpose of the
+    check (claim 5: determining the correctness of the measured relationship); we follow the
+    intent and lower the intensity of insane counts.
+* Filtered correction ratio (claim 13): a weighted mean of the stretches' k_s with forgetting
+  f = 1 - w / cal_filter_stretches per stretch (a growing-memory average until the weight
+  reaches cal_filter_stretches, then exponential), starting from the parameter ratio
+  k0 = dpp_right / dpp_left with weight cal_prior_weight; its spread is tracked too (West's
+  weighted update), pooled with cal_prior_weight pseudo-stretches of spread cal_stretch_sigma.
+  The mean stays within cal_max_correction (relative) of k0.
+* Significance (claim 5, the correctness and the intensity of the correction value): the ratio
+  applied is k = k0 + lam d, d = mean - k0, lam = d^2 / (d^2 + z^2 var_mean), z =
+  cal_significance, var_mean the spread over the effective number of stretches.  A mean the
+  stretches cannot tell from k0 is not applied: pulse quantization (one pulse in 10,000 over
+  200 m) and gentle curves leave ~1e-4 of noise per stretch, and 3e-5 of ratio error already
+  turns the wheel heading by ~1 deg/km, so a no-mismatch drive must not "calibrate" its noise.
 * New coefficients (claim 1): with the mean m = (dpp_left + dpp_right)/2 of the parameters,
   dpp_left = 2m/(1+k), dpp_right = 2mk/(1+k).  Their mean is m exactly, so the distance scale
   is untouched (only the difference between the wheels is calibrated).
@@ -59,8 +66,9 @@ class CalibrationState(NamedTuple):
     win_left: jnp.ndarray   # pulses of the current check window
     win_right: jnp.ndarray
     win_distance: jnp.ndarray  # m
-    win_sin: jnp.ndarray    # sums of sin/cos of valid compass headings in the window
-    win_cos: jnp.ndarray
+    win_ref: jnp.ndarray    # first valid compass heading of the window, rad
+    win_hsum: jnp.ndarray   # sum of wrap(H_C - win_ref) over the window's valid compass samples, rad
+    win_hn: jnp.ndarray     # number of those samples
     win_sane: jnp.ndarray   # 1.0 while every sample of the window was plausible
     str_left: jnp.ndarray   # pulses of the current straight stretch
     str_right: jnp.ndarray
@@ -81,7 +89,7 @@ def init_calibration_state(params):
     w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
     return CalibrationState(
         dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
-        ratio=ratio, mean=ratio, weight=w0, weight2=w0 * w0, m2=z, updates=z, win_left=z, win_right=z, win_distance=z, win_sin=z, win_cos=z,
+        ratio=ratio, mean=ratio, weight=w0, weight2=w0 * w0, m2=z, updates=z, win_left=z, win_right=z, win_distance=z, win_ref=z, win_hsum=z, win_hn=z,
         win_sane=jnp.ones((), jnp.float64), str_left=z, str_right=z, str_distance=z, str_heading0=z,
         str_heading0_ok=z)
 
@@ -104,8 +112,11 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     win_left = cs.win_left + pulses_left
     win_right = cs.win_right + pulses_right
     win_distance = cs.win_distance + d_t
-    win_sin = cs.win_sin + jnp.where(c_ok, jnp.sin(h), 0.0)
-    win_cos = cs.win_cos + jnp.where(c_ok, jnp.cos(h), 0.0)
+    # mean compass heading of the window: offsets from its first valid sample (wrap-safe, no
+    # transcendental functions per sample)
+    win_ref = jnp.where(c_ok & (cs.win_hn < 0.5), h, cs.win_ref)
+    win_hsum = cs.win_hsum + jnp.where(c_ok, wrap(h - win_ref), 0.0)
+    win_hn = cs.win_hn + jnp.where(c_ok, 1.0, 0.0)
     win_sane = jnp.where(odometer_ok, cs.win_sane, 0.0)
     win_done = win_distance >= params.cal_check_distance_m
 
@@ -114,9 +125,8 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     curvature = safe_div(d_left - d_right, 0.5 * (d_left + d_right))
     same_sign = win_left * win_right > 0.0
     bounded = same_sign & (win_sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
-    resultant = win_sin * win_sin + win_cos * win_cos
-    win_compass_ok = resultant > 1e-12
-    win_heading = jnp.arctan2(jnp.where(win_compass_ok, win_sin, 0.0), jnp.where(win_compass_ok, win_cos, 1.0))
+    win_compass_ok = win_hn > 0.5
+    win_heading = wrap(win_ref + safe_div(win_hsum, win_hn))
 
     # Stretch: extend by a bounded window, discard on an unbounded one.
     extend = win_done & bounded
@@ -173,8 +183,8 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
         weight2=jnp.where(done, weight2, cs.weight2), m2=jnp.where(done, m2, cs.m2),
         updates=cs.updates + jnp.where(done, 1.0, 0.0),
         win_left=zero_if(win_done, win_left), win_right=zero_if(win_done, win_right),
-        win_distance=zero_if(win_done, win_distance), win_sin=zero_if(win_done, win_sin),
-        win_cos=zero_if(win_done, win_cos), win_sane=jnp.where(win_done, one, win_sane),
+        win_distance=zero_if(win_done, win_distance), win_ref=win_ref,
+        win_hsum=zero_if(win_done, win_hsum), win_hn=zero_if(win_done, win_hn), win_sane=jnp.where(win_done, one, win_sane),
         str_left=zero_if(stretch_done, str_left), str_right=zero_if(stretch_done, str_right),
         str_distance=zero_if(stretch_done, str_distance), str_heading0=str_heading0,
         str_heading0_ok=zero_if(stretch_done, str_heading0_ok),

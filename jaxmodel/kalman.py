@@ -4,19 +4,28 @@ An error-state Kalman filter with five states and small fixed-size jnp matrices:
 
     x = [dth1, dth2, eps, dN, dE]
 
-* Course error of the dead-reckoned course (claim 1): dth = dth1 + dth2 + dth3, with
-  dth1 a first-order Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma
-  kf_gm_sigma_deg), dth2 a drift angle with an unknown start value whose pitch eps is a random
-  ramp (eps a random walk, PSD kf_ramp_psd; dth2 also gets a small random walk kf_drift_psd),
-  and dth3 Gaussian white noise (kf_white_sigma_deg), which is not a state: it enters the
-  compass measurement noise and the cross-track position noise.
-* North/east position errors dN, dE of the position computer, fed by the course error:
-  dN' = dN - s sin(th) dth, dE' = dE + s cos(th) dth (s: corrected distance of the sample).
+* Course-error model of claim 1: dth = dth1 + dth2 + dth3, with dth1 a first-order
+  Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma kf_gm_sigma_deg), dth2 a
+  drift angle with an unknown start value whose pitch eps is a random ramp (eps a random walk,
+  PSD kf_ramp_psd; dth2 also gets random-walk noise per second kf_drift_psd, per metre
+  kf_drift_per_m and per turned radian kf_turn_sigma), and dth3 Gaussian white noise
+  (kf_white_sigma_deg, not a state).
+* North/east position errors dN, dE of the position computer, fed by the course error of the
+  dead-reckoned course: dN' = dN - s sin(th) dth2, dE' = dE + s cos(th) dth2 (s: corrected
+  distance of the sample).
 
-Our reading of the seed for an odometer + compass system (the seed's course reference is a
-compass or gyro): the course that is dead-reckoned is the wheel heading H_W (the odometer),
-so dth is the error of H_W; the compass course is a measurement of it, z = wrap(H_W - H_C),
-and the position fixes (fix_east_m, fix_north_m when fix_valid) measure dN, dE.
+Our reading of the seed for an odometer + compass system.  The seed's course reference is a
+single course sensor; here two course signals are combined, so the model describes the error
+of their difference, z = wrap(H_W - H_C) = dth1 + dth2 + dth3 (H = [1, 1, 0, 0, 0]), and each
+component is given to the sensor whose physics it describes:
+* the course that is dead-reckoned is the wheel heading H_W (the odometer integrates, so its
+  error is the drift with a random ramp, dth2);
+* the compass's error is bounded and correlated in time (magnetic anomalies, dip errors on
+  hills: the Gauss-Markov dth1) plus white noise (dth3, with the wheel pulse quantization);
+* the corrected course is C_th = H_W - dth2^, and only dth2 drives the position errors.
+Tried on simulated drives: putting dth1 into the dead-reckoned course as well (C_th = H_W -
+dth1^ - dth2^) tunes to a vanishing dth1 and is no better; this split uses all three parts.
+The position fixes (fix_east_m, fix_north_m when fix_valid) measure dN, dE.
 
 Steps of claim 1, per sample:
 1. Plausibility of the speed V_M = AD/dt: implausible pulse counts (the odometer's own check)
@@ -34,13 +43,13 @@ Steps of claim 1, per sample:
    i.e. for the wheel course the Ackerman track and velocity term of US 4,788,645 eq. (8)/(14)
    (already in H_W) and for the compass course offsets, deviation table, rotation and variation
    of US 4,734,863 FIG. 8A (already in H_C).
-3. Corrected course C_th = H_W - C(th), C(th) = dth1^ + dth2^ (open loop: H_W itself is never
+3. Corrected course C_th = H_W - C(th), C(th) = dth2^ (open loop: H_W itself is never
    reset, the model's odometer keeps integrating it).  Position computer: CRN += CV cos(C_th),
    CRE += CV sin(C_th) with the mid-sample course; the position corrections C(RN), C(RE) are fed
    back after every update (closed loop: dN^, dE^ are reset to 0).
 4. Updates: compass course (scalar, H = [1, 1, 0, 0, 0]) with R = (kf_compass_sigma_deg^2 +
    kf_white_sigma_deg^2 + (kf_compass_ec_weight E_C)^2) * max(1, kf_compass_corr_m / |AD|):
-   compass errors (anomalies) are correlated over kf_compass_corr_m of road, so a stationary
+   the white compass noise is counted once per kf_compass_corr_m of road, so a stationary
    vehicle gains no information from repeating the same reading; position fixes (2-D,
    R = kf_fix_sigma_m^2 I, white as claim 1 says).  Joseph form, then symmetrized.
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
@@ -54,14 +63,15 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 
 from .angles import safe_div, wrap
 from .params import deg
 
 N_STATES = 5
 I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
-H_COMPASS = jnp.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
-H_FIX = jnp.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
+H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
+H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
 
 
 class KalmanState(NamedTuple):
@@ -129,13 +139,45 @@ def transition(params, dt, s, course, alpha=0.0):
     return phi, q
 
 
+def _mm(a, b):
+    """Product of small matrices (1-D operands as in ``@``), unrolled over the inner dimension.
+
+    Written as a sum of broadcast products with no dot or reduce: under vmap, XLA:CPU turns
+    batched 5x5 dots and multiply-reduce chains into library fusions that cost ~70 us per step
+    for 64 drives; the unrolled form fuses into plain loops (bench/bench_modes.py).
+    """
+    if a.ndim == 1:
+        return sum(a[k] * b[k] for k in range(a.shape[0]))
+    if b.ndim == 1:
+        return sum(a[:, k] * b[k] for k in range(b.shape[0]))
+    return sum(a[:, k, None] * b[None, k, :] for k in range(a.shape[1]))
+
+
+def _left(pattern, a, m):
+    """a @ m for a small matrix ``a`` whose nonzeros lie in the static bool ``pattern``: each row
+    a sum of scaled rows of m (no dot, no reduce; see _mm)."""
+    rows = []
+    for i in range(pattern.shape[0]):
+        terms = [a[i, j] * m[j] for j in range(pattern.shape[1]) if pattern[i, j]]
+        rows.append(sum(terms) if terms else jnp.zeros_like(m[0]))
+    return jnp.stack(rows)
+
+
+PHI_PATTERN = np.array([[1, 0, 0, 0, 0],
+                        [0, 1, 1, 0, 0],
+                        [0, 0, 1, 0, 0],
+                        [0, 1, 0, 1, 0],
+                        [0, 1, 0, 0, 1]], dtype=bool)
+"""Nonzeros of the transition matrix of ``transition`` (predict relies on it)."""
+
+
 def predict(err, cov, phi, q):
     """x^- = Phi x with the position rows' course coupling removed (the corrected course already
     applies the estimated course error, so the estimated position error does not grow from it);
-    P^- = Phi P Phi^T + Q, symmetrized."""
-    x = phi @ err
+    P^- = Phi P Phi^T + Q, symmetrized.  Phi must have the sparsity of PHI_PATTERN."""
+    x = _left(PHI_PATTERN, phi, err)
     x = x.at[I_N].set(err[I_N]).at[I_E].set(err[I_E])
-    p = phi @ cov @ phi.T + q
+    p = _left(PHI_PATTERN, phi, _left(PHI_PATTERN, phi, cov).T) + q  # Phi (Phi P)^T = Phi P Phi^T
     return x, 0.5 * (p + p.T)
 
 
@@ -149,22 +191,29 @@ def _inv(s):
 
 
 def update(err, cov, nu, h, r, mask, gate):
-    """Measurement update with innovation ``nu`` (m,), H (m, 5), R (m, m); Joseph form.
+    """Measurement update with innovation ``nu`` (m,), a constant H (m, 5), R (m, m); Joseph form.
 
-    ``gate`` > 0: soft gate, R is scaled by max(1, d^2 / gate^2), d^2 = nu^T S^-1 nu (S without
-    the scaling); gate <= 0 (or inf) disables it.  ``mask`` (bool) False leaves (err, cov) as they are.
+    ``h`` must be concrete (a numpy array or a constant): its zeros are skipped.  ``gate`` > 0:
+    soft gate, R is scaled by max(1, d^2 / gate^2), d^2 = nu^T S^-1 nu (S without the scaling);
+    gate <= 0 disables it.  ``mask`` (bool) False leaves (err, cov) as they are.
     Returns (err, cov, d^2).
     """
-    hp = h @ cov
-    s0 = hp @ h.T + r
-    d2 = nu @ _inv(s0) @ nu
+    h = np.asarray(h, dtype=np.float64)
+    hj = jnp.asarray(h)
+    hp = _left(h != 0.0, hj, cov)                      # H P, (m, 5)
+    hph = _left(h != 0.0, hj, hp.T)                    # H P H^T, (m, m)
+    s0 = hph + r
+    d2 = _mm(_mm(nu, _inv(s0)), nu)
     scale = jnp.where(gate > 0.0, jnp.maximum(1.0, d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2), 1.0)
-    s = hp @ h.T + scale * r
-    k = hp.T @ _inv(s)
+    s = hph + scale * r
+    k = _mm(hp.T, _inv(s))                             # (5, m)
     k = jnp.where(mask, k, 0.0)
-    x = err + k @ nu
-    a = jnp.eye(N_STATES) - k @ h
-    p = a @ cov @ a.T + scale * (k @ r @ k.T)
+    x = err + _mm(k, nu)
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T, evaluated in factored order with rank-m
+    # products (A = I - K H): AP = P - K (H P), then AP A^T = AP - (AP H^T) K^T.
+    ap = cov - _mm(k, hp)
+    aph = _left(h != 0.0, hj, ap.T).T                  # AP H^T, (5, m)
+    p = ap - _mm(aph, k.T) + scale * _mm(_mm(k, r), k.T)
     return x, 0.5 * (p + p.T), d2
 
 

@@ -252,7 +252,10 @@ def test_replayed_drive_equals_odocompass_estimate(fmus, tmp_path):
     report = run_py(REPLAY, json.dumps(jobs))
     assert not report["public_jaxmodel_imported"]
     engines = [m[2] for job in report["jobs"] for m in job["messages"] if m[1] == "logEngine"]
-    assert engines[0].startswith("engine native") or "no C compiler" in str(engines), engines
+    if shutil.which("cc") or shutil.which("gcc"):
+        assert engines[0].startswith("engine native"), engines
+    else:  # no compiler at build time: the Python lowering
+        assert engines[0].startswith("engine python"), engines
     assert engines[1].startswith("engine python") and engines[2].startswith("engine xla")
 
     for drive, job, label in ((clean, jobs[0], "native"), (clean, jobs[1], "python"), (clean, jobs[2], "xla"),

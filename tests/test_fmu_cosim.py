@@ -5,7 +5,6 @@ convention); the vehicle FMU's state.  All FMU runs happen in subprocesses (see 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np

@@ -9,7 +9,6 @@ NaN.  The Python and C dialects agree bit for bit with each other.
 from __future__ import annotations
 
 import ctypes
-import math
 import subprocess
 
 import jax

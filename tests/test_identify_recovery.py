@@ -12,7 +12,7 @@ from jaxmodel.track import effective_track
 
 # The vehicle the tests drive: a few percent (a: 40 %) away from the starting file, not the defaults.
 VEHICLE = dict(P=0.14, B=2.85, T_F=1.60, a=1.4e-4)
-START = dict(P=0.125, B=2.7, T_F=1.55, a=1.0e-4, curvature_window_m=4.0)
+START = dict(P=0.125, B=2.7, T_F=1.55, a=1.0e-4)
 
 
 def _drives(plan, seed0):
@@ -32,8 +32,7 @@ def test_recovers_known_parameters_from_simulated_drives():
     held_out = _drives([("urban", 300.0)], seed0=20)
     start = jm.make_params(START)
     assert _track_error(START) > 0.02 and abs(START["T_F"] / VEHICLE["T_F"] - 1) > 0.03
-    fitted, report = identify(train, start, fit="P,B,T_F,a,curvature_window_m", validate_drives=held_out,
-                              progress=False)
+    fitted, report = identify(train, start, fit="P,B,T_F,a", validate_drives=held_out, progress=False)
     f = jm.params_to_dict(fitted)
     assert abs(f["T_F"] / VEHICLE["T_F"] - 1.0) < 0.005
     assert abs(f["a"] / VEHICLE["a"] - 1.0) < 0.15
@@ -48,7 +47,7 @@ def test_recovers_known_parameters_from_simulated_drives():
     assert abs(f["T_F"] - VEHICLE["T_F"]) < 4 * p["T_F"]["std_error"] + 1e-4
     assert abs(f["a"] - VEHICLE["a"]) < 4 * p["a"]["std_error"]
     corr = np.array(report["correlation"]["matrix"], dtype=float)
-    assert corr.shape == (5, 5) and np.allclose(np.diag(corr), 1.0)
+    assert corr.shape == (4, 4) and np.allclose(np.diag(corr), 1.0)
 
 
 @pytest.mark.slow
