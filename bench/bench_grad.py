@@ -71,7 +71,7 @@ def flat_objective(problem: L.StageProblem):
         h, started = jax.vmap(lambda inp: jax.lax.scan(body, flat0, inp)[1])(problem.inputs)
         e = wrap(h - problem.ref)
         w = jax.lax.stop_gradient(problem.mask * (started > 0.5))
-        r, w = L.residuals(e, w, problem.align, problem.lag)
+        r, w = L.residuals(e, w, problem.align, problem.lag, problem.prev, problem.sample_weight)
         return L.data_term(r, w, jnp.asarray(problem.n_eff)) + 0.5 * jnp.sum(z * z)
 
     return objective
@@ -89,9 +89,9 @@ def main():
     start = jaxmodel.make_params()
     space = L.make_space(L.parse_fit(args.fit), start)
     config = jaxmodel.Config(mode="odometer", calibration=False)
-    lag = 300
+    time_s = np.asarray(inputs.time_s)
     problem = L.StageProblem(space, start, inputs, jnp.asarray(ref), jnp.asarray(mask), config, "wheel_heading",
-                             False, L.effective_counts(np.asarray(inputs.time_s), mask, 30.0), lag)
+                             False, L.effective_counts(time_s, mask, 30.0), 0, L.increment_index(time_s, 30.0))
     z = jnp.full((space.dim,), 0.1)
     b, n = inputs.time_s.shape
     print(f"batch: {b} drives x {n} samples (padded) = {b * n:,} estimator steps per pass, float64, "

@@ -1,13 +1,22 @@
 """Throughput of jit(vmap(run)) over 64 drives x 36,000 samples (1 h at 10 Hz), float64,
 with its compile time, side by side with the slow literal reference loop (tests/oracle.py).
 
-    .venv/bin/python bench/bench_run.py [--drives 64] [--samples 36000] [--mode complementary]
+    .venv/bin/python bench/bench_run.py [--drives 64] [--samples 36000] [--devices 2]
 
-Target (issue 2): >= 1e7 samples/s on a 2-core machine.
+Target (issue 2): >= 1e7 samples/s on a 2-core machine.  Each configuration of jaxmodel.Config
+is measured: the complementary filter alone (refinement of a and calibration off), with the
+refinement of a, and the full default (refinement + left/right calibration).  ``--devices 2``
+splits the host into two XLA CPU devices and shards the drive axis over them (one per core).
 """
 
-import argparse
+import os
 import sys
+
+if "--devices" in sys.argv:  # must be set before jax is imported
+    _n = sys.argv[sys.argv.index("--devices") + 1]
+    os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={_n}"
+
+import argparse
 import time
 from pathlib import Path
 
@@ -44,21 +53,19 @@ def make_batch(n_drives, n_samples):
     return jm.make_inputs(tile(one["time_s"]), tile(one["left_pulses"]), tile(one["right_pulses"]), cx, cy), one, pd
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--drives", type=int, default=64)
-    ap.add_argument("--samples", type=int, default=36000)
-    ap.add_argument("--mode", default="complementary")
-    ap.add_argument("--reference-samples", type=int, default=36000)
-    args = ap.parse_args()
+CONFIGS = {
+    "complementary (refine off, calibration off)": dict(mode="complementary", refine_a=False, calibration=False),
+    "complementary + refinement of a": dict(mode="complementary", refine_a=True, calibration=False),
+    "complementary, full default (+ calibration)": dict(mode="complementary"),
+    "odometer": dict(mode="odometer", refine_a=False, calibration=False),
+}
 
-    batch, one, pd = make_batch(args.drives, args.samples)
-    params = jm.make_params()
-    config = jm.Config(mode=args.mode)
-    fn = jax.jit(jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading))
 
+def measure(params, batch, config, sharding=None):
+    fn = jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading)
+    jitted = jax.jit(fn) if sharding is None else jax.jit(fn, in_shardings=sharding, out_shardings=sharding)
     t0 = time.perf_counter()
-    compiled = fn.lower(batch).compile()
+    compiled = jitted.lower(batch).compile()
     compile_s = time.perf_counter() - t0
     compiled(batch).block_until_ready()  # warm
     runs = []
@@ -66,25 +73,43 @@ def main():
         t0 = time.perf_counter()
         compiled(batch).block_until_ready()
         runs.append(time.perf_counter() - t0)
-    best = min(runs)
+    return compile_s, min(runs)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--drives", type=int, default=64)
+    ap.add_argument("--samples", type=int, default=36000)
+    ap.add_argument("--devices", type=int, default=1)
+    ap.add_argument("--reference-samples", type=int, default=36000)
+    args = ap.parse_args()
+
+    batch, one, pd = make_batch(args.drives, args.samples)
+    params = jm.make_params()
+    sharding = None
+    if args.devices > 1:
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+        sharding = NamedSharding(Mesh(np.array(jax.devices()[: args.devices]), ("drives",)), PartitionSpec("drives"))
+        batch = jax.device_put(batch, sharding)
     total = args.drives * args.samples
-    jax_rate = total / best
 
     n_ref = min(args.reference_samples, args.samples)
     t0 = time.perf_counter()
     run_reference(pd, one["time_s"][:n_ref], one["left_pulses"][:n_ref], one["right_pulses"][:n_ref],
                   one["compass_x"][:n_ref], one["compass_y"][:n_ref])
-    ref_s = time.perf_counter() - t0
-    ref_rate = n_ref / ref_s
+    ref_rate = n_ref / (time.perf_counter() - t0)
 
-    print(f"jit(vmap(run)) {args.mode}, float64, {args.drives} drives x {args.samples} samples = {total:,} samples")
-    print(f"  compile time              : {compile_s:8.2f} s")
-    print(f"  run time (best of 3)      : {best:8.3f} s   (all: {', '.join(f'{r:.3f}' for r in runs)})")
-    print(f"  throughput                : {jax_rate:10.3e} samples/s   (target >= 1e7)")
-    print(f"slow reference loop (tests/oracle.py, pure Python), {n_ref:,} samples")
-    print(f"  throughput                : {ref_rate:10.3e} samples/s")
-    print(f"ratio jax / reference       : {jax_rate / ref_rate:8.1f}x")
-    print(f"devices: {jax.devices()}  x64: {jax.config.jax_enable_x64}")
+    print(f"jit(vmap(run)), float64, {args.drives} drives x {args.samples} samples = {total:,} samples, "
+          f"{args.devices} XLA CPU device(s); {jax.devices()[0].platform}, x64 {jax.config.jax_enable_x64}")
+    print(f"slow reference loop (tests/oracle.py, pure Python, complementary without refinement): "
+          f"{ref_rate:.3e} samples/s over {n_ref:,} samples")
+    print(f"{'configuration':46s} {'compile s':>9s} {'run s':>7s} {'samples/s':>11s} {'vs target 1e7':>13s} {'vs reference':>12s}")
+    for name, kwargs in CONFIGS.items():
+        compile_s, best = measure(params, batch, jm.Config(**kwargs), sharding)
+        rate = total / best
+        print(f"{name:46s} {compile_s:9.2f} {best:7.3f} {rate:11.3e} {rate / 1e7:12.2f}x {rate / ref_rate:11.0f}x",
+              flush=True)
 
 
 if __name__ == "__main__":

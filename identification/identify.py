@@ -122,12 +122,6 @@ def _stack(drives):
     return jax.tree_util.tree_map(jnp.asarray, inputs), np.asarray(ref), np.asarray(mask * rmask)
 
 
-def _median_dt(time_s: np.ndarray) -> float:
-    dt = np.diff(np.asarray(time_s, dtype=np.float64), axis=-1)
-    dt = dt[dt > 0]
-    return float(np.median(dt)) if dt.size else 0.1
-
-
 class _Evaluator:
     """One compiled forward pass over every drive (train + validation) for RMSEs and plots."""
 
@@ -212,7 +206,6 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                                   f"which identification needs")
 
     inputs, ref, mask = _stack(train)
-    dt = _median_dt(np.asarray(inputs.time_s))
     stages = plan_stages(keys, mode, increment_s, increment_m)
     warnings: list[str] = []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
@@ -240,10 +233,13 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
             ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
             sample_weight = jnp.asarray(ds)
             n_eff = np.where(mask.sum(-1) > 0, np.maximum(np.sum(mask * ds, axis=-1) / stage.lag_m, 1.0), 0.0)
+        elif stage.lag_s > 0:  # heading changes over a time span (per drive, robust to jitter and dropped samples)
+            lag = 0
+            prev = L.increment_index(np.asarray(inputs.time_s), stage.lag_s)
+            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, stage.lag_s)
         else:
-            lag = int(round(stage.lag_s / dt)) if stage.lag_s > 0 else 0
-            tau = stage.lag_s if lag > 0 else decorrelation_s
-            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, tau)
+            lag = 0
+            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, decorrelation_s)
         problem = L.StageProblem(space, current, inputs, jnp.asarray(ref), jnp.asarray(mask), cfg,
                                  stage.field_name, stage.align, n_eff, lag, prev, sample_weight)
         use_forward = derivatives == "forward" or (derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
@@ -310,7 +306,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
             "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
             "estimator_mode": stage.mode,
             "loss": (f"1 - cos of the heading change error over {stage.lag_m:g} m travelled" if stage.lag_m > 0
-                     else f"1 - cos of the heading change error over {stage.lag_s:g} s ({lag} samples)" if lag
+                     else f"1 - cos of the heading change error over {stage.lag_s:g} s" if stage.lag_s > 0
                      else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
             "effective_errors_per_drive": [float(x) for x in problem.n_eff],
             "derivatives": "forward" if use_forward else "reverse (checkpointed)",

@@ -25,15 +25,20 @@ For each drive d with weights w_i (real sample, finite reference, wheel heading 
     D(theta) = sum_d (n_d / 2) log(S_d / W_d)                 (Gaussian likelihood, sigma_d profiled out)
     F(z)  = D(theta(z)) + ½ |z|²                              (MAP objective)
 
-``n_d`` is the effective number of independent errors in drive d: its duration divided by
-``decorrelation_s`` (heading errors at 10 Hz are far from independent; see docs/identification.md).
+``n_d`` is the effective number of independent errors in drive d: its duration divided by the
+increment window, or by ``decorrelation_s`` for absolute errors (heading errors at 10 Hz are far from
+independent; see docs/identification.md).
 Profiling sigma_d per drive weights each drive by its own error level, so a parking drive whose
 errors are centimetres-small still counts, and the data/prior balance does not depend on units.
 
 For the *odometer* heading (the wheel model alone) the heading is started from one compass
-sample, whose error is a constant offset of the whole drive unrelated to the wheel parameters;
-that offset is profiled out per drive (``align=True``): b_d = atan2(sum w sin e, sum w cos e),
-e_i <- wrap(e_i - b_d).  By the envelope theorem the gradient is unchanged by the profiling.
+sample, whose error is a constant offset of the whole drive unrelated to the wheel parameters, and
+wheel slip adds a slowly accumulating random walk.  ``identify`` therefore fits heading *changes*:
+e_i <- wrap(e_i - e_prev_i), prev_i the last sample at least 30 s (or a travelled distance)
+earlier (``increment_index``); the offset cancels and slip noise enters once per window.  The
+alternative ``align=True`` profiles the offset out of absolute errors instead:
+b_d = atan2(sum w sin e, sum w cos e), e_i <- wrap(e_i - b_d) (by the envelope theorem the gradient
+is unchanged by the profiling), but lets the random walk leak into the parameters.
 
 Which heading carries the signal of which parameter
 ---------------------------------------------------
@@ -42,7 +47,7 @@ Which heading carries the signal of which parameter
   also changes the wheel heading; likewise the curvature window, dpp and calibration constants.
 * ``D_N`` and the other heading-filter constants (FIG. 8C-8G) and the compass constants
   (FIG. 8A) act on the complementary heading; the wheel heading sees the compass only through its
-  start value (profiled out) and the refinement of ``a``.
+  start value (it cancels in heading changes) and the refinement of ``a``.
 ``FILTER_KEYS`` lists the second group; ``identification.identify`` fits the first group on the
 odometer heading and then the second on the complementary heading (mode ``odometer``).
 """
@@ -58,7 +63,7 @@ import numpy as np
 
 import jaxmodel
 from jaxmodel.angles import wrap
-from jaxmodel.params import PARAMETER_KEYS, PARAMETER_SPECS
+from jaxmodel.params import PARAMETER_SPECS
 
 from .errors import OdoCompassError
 

@@ -53,10 +53,12 @@ def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: floa
     """Track implied by the data per curvature bin: sum s dD / sum s dpsi_ref (1 + a V²).
 
     Samples are binned by the curvature of the *reference* heading over +-half_window_m of travel
-    (times the fitted T_F(1 + aV²), to be in dD/AD units), not by the estimator's curvature: that one
+    (times the fitted T_E(c)(1 + aV²), to be in dD/AD units), not by the estimator's curvature: that one
     is computed from the same quantized pulses as dD, and selecting on it biases the ratio.  s is the
     sign of the reference heading change over the window, so noise averages out and reversing does
     not cancel driving forwards."""
+    from jaxmodel.track import effective_track
+
     num, den, c_all = [], [], []
     t_f = float(params.T_F)
     for b in range(n_train):
@@ -82,7 +84,13 @@ def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: floa
         gain = 1.0 + ev["a"][b][:n] * v * v
         w = (ev["weight"][b][:n] > 0) & (np.roll(ev["weight"][b][:n], 1) > 0) & (span > half_window_m)
         w[0] = False
-        c_ref = np.where(span > 0, np.abs(turn) / np.where(span > 0, span, 1.0), 0.0) * t_f * gain
+        kappa = np.where(span > 0, np.abs(turn) / np.where(span > 0, span, 1.0), 0.0) * gain
+        c_ref = kappa * t_f
+        if float(params.sensor_axle) >= 0.5:  # c = kappa T_E(c): a few fixed-point steps on the fitted curve
+            for _ in range(3):
+                c_ref = kappa * np.asarray(effective_track(c_ref, params.P, params.B, params.T_F, params.curvature_clip))
+        else:
+            c_ref = kappa * float(params.T_R)
         s = np.sign(turn)
         num.append((s * dD)[w])
         den.append((s * dpsi * gain)[w])

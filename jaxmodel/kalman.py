@@ -69,6 +69,12 @@ from .angles import safe_div, wrap
 from .params import deg
 
 N_STATES = 5
+MAX_DT_S = 60.0
+"""Longest time step the error model propagates over (a logging gap counts as this)."""
+MAX_FIX_M = 1.0e7
+"""Fixes (and a position computer) farther than this from the origin are not plausible (m)."""
+MAX_GATE_SCALE = 1.0e12
+"""Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
 I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
 H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
 H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
@@ -204,7 +210,7 @@ def update(err, cov, nu, h, r, mask, gate):
     hph = _left(h != 0.0, hj, hp.T)                    # H P H^T, (m, m)
     s0 = hph + r
     d2 = _mm(_mm(nu, _inv(s0)), nu)
-    scale = jnp.where(gate > 0.0, jnp.maximum(1.0, d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2), 1.0)
+    scale = jnp.where(gate > 0.0, jnp.clip(d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2, 1.0, MAX_GATE_SCALE), 1.0)
     s = hph + scale * r
     k = _mm(hp.T, _inv(s))                             # (5, m)
     k = jnp.where(mask, k, 0.0)
@@ -243,7 +249,9 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     dpp = jnp.maximum(params.dpp_left, params.dpp_right)
     track = jnp.minimum(params.T_F, params.T_R)
 
-    # 1. Plausibility of speed and course.
+    # 1. Plausibility of speed and course.  A gap longer than MAX_DT_S propagates as MAX_DT_S
+    # (the noise models are for normal sampling; an absurd time step must not overflow Q).
+    dt = jnp.clip(dt, 0.0, MAX_DT_S)
     time_ok = dt > 0.0
     v_meas = safe_div(distance, dt)
     dv_max = params.kf_max_accel * dt + safe_div(2.0 * dpp, dt)
@@ -281,7 +289,8 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], H_COMPASS, r_c[None, None], use_c, params.kf_gate_sigma)
 
     # 4b. Position fix update (the first fix without the gate).
-    fix_ok = active & (fix_valid > 0.5) & jnp.isfinite(fix_east) & jnp.isfinite(fix_north)
+    fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
+              & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
     fe = jnp.where(fix_ok, fix_east, 0.0)
     fn = jnp.where(fix_ok, fix_north, 0.0)
     nu_f = jnp.stack([north - fn - err_u[I_N], east - fe - err_u[I_E]])
