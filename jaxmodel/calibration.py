@@ -29,8 +29,10 @@ N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
 * Filtered correction ratio (claim 13): a weighted mean of the stretches' k_s with forgetting
   f = 1 - w / cal_filter_stretches per stretch (a growing-memory average until the weight
   reaches cal_filter_stretches, then exponential), starting from the parameter ratio
-  k0 = dpp_right / dpp_left with weight cal_prior_weight; its spread is tracked too (West's
-  weighted update), pooled with cal_prior_weight pseudo-stretches of spread cal_stretch_sigma.
+  k0 = dpp_right / dpp_left with the small weight cal_prior_weight (it fades like a stretch,
+  so a heavier prior would bias the result towards k0 for a long time); its spread is tracked
+  too (West's weighted update), pooled with SIGMA_PRIOR_STRETCHES pseudo-stretches of spread
+  cal_stretch_sigma.
   The mean stays within cal_max_correction (relative) of k0.
 * Significance (claim 5, the correctness and the intensity of the correction value): the ratio
   applied is k = k0 + lam d, d = mean - k0, lam = d^2 / (d^2 + z^2 var_mean), z =
@@ -55,6 +57,10 @@ import jax.numpy as jnp
 
 from .angles import safe_div, wrap
 from .params import deg
+
+
+SIGMA_PRIOR_STRETCHES = 2.0
+"""Weight (in stretches) of the prior spread cal_stretch_sigma in the pooled spread of k_s."""
 
 
 class CalibrationState(NamedTuple):
@@ -178,7 +184,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
 
     # Filtered correction ratio (claim 13): weighted mean with forgetting f = 1 - w/N per stretch
     # (a growing-memory average until the weight reaches cal_filter_stretches, then exponential),
-    # and its weighted spread (West's update), pooled with cal_prior_weight pseudo-stretches of
+    # and its weighted spread (West's update), pooled with SIGMA_PRIOR_STRETCHES pseudo-stretches of
     # spread cal_stretch_sigma around the parameter ratio.
     f = jnp.clip(1.0 - w / params.cal_filter_stretches, 0.0, 1.0)
     weight = f * cs.weight + w
@@ -190,7 +196,8 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     # applied is k0 + lam (mean - k0), lam = d^2 / (d^2 + z^2 var_mean), so a mean that the
     # stretches do not distinguish from the parameter ratio is not applied (a shrinkage estimator).
     n_eff = safe_div(weight * weight, weight2, fallback=1.0)
-    var_mean = safe_div(m2 + params.cal_prior_weight * params.cal_stretch_sigma ** 2, weight * n_eff, fallback=1.0)
+    var_s = (m2 + SIGMA_PRIOR_STRETCHES * params.cal_stretch_sigma ** 2) / (weight + SIGMA_PRIOR_STRETCHES)
+    var_mean = safe_div(var_s, n_eff, fallback=1.0)
     d = new_mean - k0
     lam = safe_div(d * d, d * d + params.cal_significance ** 2 * var_mean)
     ratio = k0 + lam * d

@@ -91,7 +91,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("cal_compass_tolerance_deg", 1.0, "deg", "EP 0619873 claims 6-9: intensity exp(-0.5 (compass heading change / this)^2)"),
     ParamSpec("cal_no_compass_weight", 0.25, "1", "EP 0619873 claim 5: intensity of a stretch the compass cannot check"),
     ParamSpec("cal_sanity_bound", 0.005, "1", "EP 0619873 claims 10-11: sanity intensity 1/(1 + ((k_s/filtered ratio - 1)/this)^2)"),
-    ParamSpec("cal_prior_weight", 1.0, "1", "EP 0619873 claim 13: weight of the parameter ratio as a prior, in stretches"),
+    ParamSpec("cal_prior_weight", 0.1, "1", "EP 0619873 claim 13: weight of the parameter ratio in the filtered ratio, in stretches"),
     ParamSpec("cal_filter_stretches", 100.0, "1", "EP 0619873 claim 13: memory of the filtered correction ratio, in stretches"),
     ParamSpec("cal_stretch_sigma", 1.5e-4, "1", "prior spread of one stretch's correction ratio (pooled with the observed spread)"),
     ParamSpec("cal_significance", 5.0, "1", "significance z: applied k = k0 + d d^2/(d^2 + z^2 var_mean), d = filtered ratio - k0"),

@@ -23,7 +23,7 @@ from .angles import safe_div, wrap
 from .params import deg
 
 
-class RefineState(NamedTuple):
+class _RefineFields(NamedTuple):
     offset_before: jnp.ndarray   # smoothed H_C - H_W on the straight before a turn, rad
     offset_after_sum: jnp.ndarray  # distance-weighted sum of wrap(DELTA - offset_before) after the turn, rad.m
     offset_after_weight: jnp.ndarray  # distance with a valid compass in that sum, m
@@ -36,9 +36,24 @@ class RefineState(NamedTuple):
     updates: jnp.ndarray         # number of accepted refinements
 
 
+class RefineState(NamedTuple):
+    """The refinement's state as one float64 vector (fields in _RefineFields order): one carry
+    buffer instead of ten, which XLA:CPU updates with fewer kernels inside the scan."""
+
+    vector: jnp.ndarray
+
+
+def _unpack(rs):
+    return _RefineFields(*[rs.vector[..., i] for i in range(len(_RefineFields._fields))])
+
+
+def _pack(fields):
+    return RefineState(jnp.stack(list(fields), axis=-1))
+
+
 def init_refine_state():
     z = jnp.zeros((), jnp.float64)
-    return RefineState(z, z, z, z, z, z, jnp.ones((), jnp.float64), z, z, z)
+    return _pack(_RefineFields(z, z, z, z, z, z, jnp.ones((), jnp.float64), z, z, z))
 
 
 def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, compass_ok, enabled):
@@ -50,6 +65,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     """
     if not enabled:
         return rs, a
+    rs = _unpack(rs)
     turning = jnp.abs(curvature) > params.turn_curvature
     compass_good = compass_ok & (e_c < deg(params.refine_compass_max_error_deg))
     speed_ok = (speed >= params.refine_speed_min) & (speed <= params.refine_speed_max)
@@ -91,7 +107,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     a_new = jnp.where(accept, a + error / params.T_C, a)  # eq. (13)
 
     offset_before = jnp.where(ends, wrap(offset_before + mean_shift), offset_before)
-    new = RefineState(
+    new = _RefineFields(
         offset_before=offset_before,
         offset_after_sum=jnp.where(ends, 0.0, after_sum),
         offset_after_weight=jnp.where(ends, 0.0, after_weight),
@@ -103,4 +119,4 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
         turn_bad_samples=jnp.where(ends, 0.0, turn_bad),
         updates=rs.updates + jnp.where(accept, 1.0, 0.0),
     )
-    return new, a_new
+    return _pack(new), a_new
