@@ -35,8 +35,10 @@ N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
   cal_stretch_sigma.
   The mean stays within cal_max_correction (relative) of k0.
 * Significance (claim 5, the correctness and the intensity of the correction value): the ratio
-  applied is k = k0 + lam d, d = mean - k0, lam = d^2 / (d^2 + z^2 var_mean), z =
-  cal_significance, var_mean the spread over the effective number of stretches.  A mean the
+  applied is k = k0 + lam d, d = mean - k0, lam = 1 / (1 + (z^2 var_mean / d^2)^2), z =
+  cal_significance, var_mean the spread over the effective number of stretches: a smooth step
+  from 0 (d well inside z standard errors) to 1 (d well outside), sharp enough that a clear
+  correction is applied in full (the squared ratio leaves a bias of (z^2 var/d^2)^2 d only).  A mean the
   stretches cannot tell from k0 is not applied: pulse quantization (one pulse in 10,000 over
   200 m) and gentle curves leave ~1e-4 of noise per stretch, and 3e-5 of ratio error already
   turns the wheel heading by ~1 deg/km, so a no-mismatch drive must not "calibrate" its noise.
@@ -193,13 +195,14 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     new_mean = jnp.clip(mean + safe_div(w, weight) * (k_s - mean), k0 - lim, k0 + lim)
     m2 = f * cs.m2 + w * (k_s - mean) * (k_s - new_mean)
     # Significance of the correction (claim 5, "correctness ... and an intensity"): the ratio
-    # applied is k0 + lam (mean - k0), lam = d^2 / (d^2 + z^2 var_mean), so a mean that the
+    # applied is k0 + lam (mean - k0), lam = 1 / (1 + (z^2 var_mean / d^2)^2), so a mean that the
     # stretches do not distinguish from the parameter ratio is not applied (a shrinkage estimator).
     n_eff = safe_div(weight * weight, weight2, fallback=1.0)
     var_s = (m2 + SIGMA_PRIOR_STRETCHES * params.cal_stretch_sigma ** 2) / (weight + SIGMA_PRIOR_STRETCHES)
     var_mean = safe_div(var_s, n_eff, fallback=1.0)
     d = new_mean - k0
-    lam = safe_div(d * d, d * d + params.cal_significance ** 2 * var_mean)
+    noise_to_signal = safe_div(params.cal_significance ** 2 * var_mean, d * d, eps=1e-300, fallback=1e150)
+    lam = 1.0 / (1.0 + jnp.minimum(noise_to_signal, 1e150) ** 2)
     ratio = k0 + lam * d
 
     done = stretch_done

@@ -77,6 +77,7 @@ MAX_GATE_SCALE = 1.0e12
 """Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
 I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
 H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
+H_MAP = np.array([[0.0, 1.0, 0.0, 0.0, 0.0]])
 H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
 
 
@@ -232,13 +233,24 @@ def compass_noise(params, e_c, distance):
     return r0 * jnp.minimum(factor, 1e9)
 
 
+def map_noise(params, distance):
+    """Map course variance (rad^2) for a sample covering |distance| m, counted per kf_compass_corr_m."""
+    r0 = deg(params.kf_map_sigma_deg) ** 2 + deg(params.kf_white_sigma_deg) ** 2
+    d = jnp.abs(distance)
+    factor = jnp.maximum(1.0, safe_div(params.kf_compass_corr_m, d, eps=1e-9, fallback=1e9))
+    return r0 * jnp.minimum(factor, 1e9)
+
+
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
-                fix_east, fix_north, fix_valid, odometer_ok, initialized, enabled=True):
+                fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
+                enabled=True):
     """One sample.  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
     dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp;
     alpha: wheel heading change of the sample (rad); wheel_heading: H_W after it;
     compass_heading: H_C (valid where compass_ok); e_c: compass error bound (rad);
+    map_heading, map_used: the street heading chosen by the map-heading selector (FIG. 8F) and
+    whether it replaced the compass on this sample;
     odometer_ok: the odometer's own plausibility of the counts; initialized: H_W has been
     started (1.0).  ``enabled`` is static: False (other modes) passes the state through.
     """
@@ -281,12 +293,18 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     north = ks.y + s * jnp.cos(course_mid)
     east = ks.x + s * jnp.sin(course_mid)
 
-    # 4a. Compass course update.
-    z_c = wrap(wheel_heading - compass_heading)
-    nu_c = wrap(z_c - (err_p[I_GM] + err_p[I_DRIFT]))
-    r_c = compass_noise(params, e_c, s)
-    use_c = active & compass_ok & (jnp.abs(s) > 0.0)
-    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], H_COMPASS, r_c[None, None], use_c, params.kf_gate_sigma)
+    # 4a. Course update: the compass course (H = [1, 1, 0, 0, 0]) or, where the map-heading
+    # selector of US 4,734,863 FIG. 8F chose the street heading (course support data of the
+    # seed's input means), the map course (H = [0, 1, 0, 0, 0]: the compass's colored error
+    # dth1 is not in it).
+    nu_c = wrap(wrap(wheel_heading - compass_heading) - (err_p[I_GM] + err_p[I_DRIFT]))
+    use_c = active & compass_ok & ~map_used & (jnp.abs(s) > 0.0)
+    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], H_COMPASS, compass_noise(params, e_c, s)[None, None], use_c,
+                             params.kf_gate_sigma)
+    nu_m = wrap(wrap(wheel_heading - map_heading) - err_u[I_DRIFT])
+    use_m = active & map_used & (jnp.abs(s) > 0.0)
+    err_u, cov_u, _ = update(err_u, cov_u, nu_m[None], H_MAP, map_noise(params, s)[None, None], use_m,
+                             params.kf_gate_sigma)
 
     # 4b. Position fix update (the first fix without the gate).
     fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)

@@ -277,7 +277,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["plausible"],
-        initialized=initialized, enabled=config.mode == "kalman")
+        initialized=initialized, map_heading=absolute, map_used=map_used, enabled=config.mode == "kalman")
 
     if config.mode == "complementary":
         heading = complementary
