@@ -65,7 +65,7 @@ SIGMA_PRIOR_STRETCHES = 2.0
 """Weight (in stretches) of the prior spread cal_stretch_sigma in the pooled spread of k_s."""
 
 
-class CalibrationState(NamedTuple):
+class CalibrationFields(NamedTuple):
     dpp_left: jnp.ndarray   # m per pulse, current
     dpp_right: jnp.ndarray  # m per pulse, current
     ratio: jnp.ndarray      # k = dpp_right / dpp_left applied
@@ -95,6 +95,25 @@ class CalibrationState(NamedTuple):
     prev_bounded: jnp.ndarray  # 1.0 if the last completed window was bounded
 
 
+class CalibrationState(NamedTuple):
+    """The calibration's state as one float64 vector in CalibrationFields order; each field reads
+    as an attribute (``cs.ratio``, also on stacked states).  One carry buffer instead of 27
+    scalars: XLA:CPU then updates it with far fewer kernels per scan step (bench/bench_run.py)."""
+
+    vector: jnp.ndarray
+
+    def fields(self) -> CalibrationFields:
+        return CalibrationFields(*[self.vector[..., i] for i in range(len(CalibrationFields._fields))])
+
+
+for _i, _name in enumerate(CalibrationFields._fields):
+    setattr(CalibrationState, _name, property(lambda self, i=_i: self.vector[..., i]))
+
+
+def _pack(fields: CalibrationFields) -> CalibrationState:
+    return CalibrationState(jnp.stack([jnp.asarray(f, jnp.float64) for f in fields], axis=-1))
+
+
 def _coefficients(params, ratio):
     """dpp_left, dpp_right with ratio k and the parameters' mean (EP 0619873 claim 1)."""
     two_m = params.dpp_left + params.dpp_right
@@ -105,13 +124,13 @@ def init_calibration_state(params):
     z = jnp.zeros((), jnp.float64)
     ratio = jnp.asarray(params.dpp_right / params.dpp_left, jnp.float64)
     w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
-    return CalibrationState(
+    return _pack(CalibrationFields(
         dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
         ratio=ratio, mean=ratio, weight=w0, weight2=w0 * w0, m2=z, updates=z, win_left=z, win_right=z, win_distance=z,
         win_ref=z, win_hsum=z, win_hn=z,
         win_sane=jnp.ones((), jnp.float64), str_left=z, str_right=z, str_distance=z, str_heading0=z,
         str_heading0_ok=z, pend_left=z, pend_right=z, pend_distance=z, pend_heading=z, pend_heading_ok=z,
-        pend_ok=z, prev_bounded=z)
+        pend_ok=z, prev_bounded=z))
 
 
 def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok,
@@ -124,6 +143,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     """
     if not enabled:
         return cs
+    cs = cs.fields()
     one = jnp.ones((), jnp.float64)
 
     # Check window: total the counts and the compass direction.
@@ -211,7 +231,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     dpp_left, dpp_right = _coefficients(params, ratio)
 
     zero_if = lambda cond, v: jnp.where(cond, 0.0, v)  # noqa: E731
-    return CalibrationState(
+    return _pack(CalibrationFields(
         dpp_left=jnp.where(stretch_done, dpp_left, cs.dpp_left),
         dpp_right=jnp.where(stretch_done, dpp_right, cs.dpp_right),
         ratio=ratio, mean=mean, weight=jnp.where(done, weight, cs.weight),
@@ -225,4 +245,4 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
         str_heading0_ok=zero_if(stretch_done, str_heading0_ok),
         pend_left=pend_left, pend_right=pend_right, pend_distance=pend_distance, pend_heading=pend_heading,
         pend_heading_ok=pend_heading_ok, pend_ok=pend_ok, prev_bounded=prev_bounded,
-    )
+    ))
