@@ -120,18 +120,18 @@ def identify_vehicle(out_dir: Path, minutes: float):
         _say(f"   warning: {w}")
     _say(f"   identify took {wall:.1f} s; report and plots in {out_dir / 'identification'}")
     jm.save_params(out_dir / "identified.json", fitted, report)
-    return out_dir / "identified.json"
+    return out_dir / "identified.json", true
 
 
-def cosimulate(out_dir: Path, params_path: Path, stop_time: float):
+def cosimulate(out_dir: Path, params_path: Path, true_params: dict, stop_time: float):
     from fmu.build import build_estimator
     from fmu.cosim import demo_cosimulation
 
     fmu_path = build_estimator(Path("build") / "OdoCompass.fmu", params_path)
-    _say(f"\n3. FMU: built {fmu_path} with the identified parameters; co-simulating it with the vehicle "
-         f"FMU in fmpy ({stop_time:.0f} s) and through an SSP file")
+    _say(f"\n3. FMU: built {fmu_path} with the identified parameters; co-simulating it with a vehicle FMU "
+         f"of the same (true) vehicle in fmpy ({stop_time:.0f} s) and through an SSP file")
     summary = demo_cosimulation(out_dir / "cosim", estimator_fmu=fmu_path, stop_time=stop_time,
-                                fmu_dir=Path("build"))
+                                fmu_dir=Path("build"), true_params=true_params)
     _say(f"   fmpy master: ended at {summary['end_time']:.1f} s, heading RMSE {summary['rmse_deg']:.2f}° "
          f"against the vehicle's true heading")
     if "ssp_path" in summary:
@@ -147,8 +147,8 @@ def main(args) -> int:
     quick = bool(getattr(args, "quick", False))
     t0 = time.perf_counter()
     rmse = estimate_modes(out_dir, duration_s=300.0 if quick else 900.0)
-    params_path = identify_vehicle(out_dir, minutes=4.0 if quick else 12.0)
-    cosim = cosimulate(out_dir, params_path, stop_time=120.0 if quick else 300.0)
+    params_path, true_params = identify_vehicle(out_dir, minutes=4.0 if quick else 12.0)
+    cosim = cosimulate(out_dir, params_path, true_params, stop_time=120.0 if quick else 300.0)
     summary = dict(heading_rmse_deg=rmse, identified_params=str(params_path),
                    cosimulation=cosim)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
