@@ -88,3 +88,16 @@ def test_gradient_through_hostile_samples_stays_finite():
 
     g = jax.grad(loss, argnums=(0, 1))(jnp.float64(1e-4), jnp.float64(0.125))
     assert all(np.isfinite(float(x)) for x in g)
+
+
+def test_regression_huge_time_jump_and_huge_field_in_every_mode():
+    """Found by hypothesis: time jumping to 1e300 s and a 1e300 compass component (Kalman blew up,
+    |B|^2 overflowed)."""
+    t = np.r_[0.0, np.ones(33), np.full(14, 1e300)]
+    right = np.r_[np.zeros(33), np.ones(15)]
+    for cy in (np.full(N, 1e300), np.zeros(N)):
+        inputs = jm.make_inputs(t, np.cumsum(np.full(N, 30.0)), right, np.full(N, 20.0), cy)
+        for mode in jm.MODES:
+            out = _run_all[mode](jm.make_params(), inputs)
+            assert np.all(np.isfinite(np.asarray(out.heading))), mode
+            assert np.all(np.isfinite(np.asarray(out.x))) and np.all(np.isfinite(np.asarray(out.y))), mode
