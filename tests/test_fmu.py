@@ -71,7 +71,12 @@ def run_py(code: str, *args: str, timeout: float = 900, env_extra: dict | None =
     env.pop("JAX_ENABLE_X64", None)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     env.update(env_extra or {})
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code), *map(str, args)], capture_output=True,
+    # The script ends with os._exit: interpreter teardown after several pythonfmu instances in one
+    # host intermittently aborts with heap corruption ("corrupted double-linked list", seen 1 run in
+    # ~10 in CI) after all work and output are done; that is a known pythonfmu/fmpy exit-time fault
+    # (docs/fmu.md), not what these tests measure. An exception in the script still fails the test.
+    code = textwrap.dedent(code) + "\nimport os as _os, sys as _sys\n_sys.stdout.flush()\n_sys.stderr.flush()\n_os._exit(0)\n"
+    proc = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, env=env, cwd=str(cwd or tempfile.gettempdir()))
     assert proc.returncode == 0, f"subprocess failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
     return json.loads(proc.stdout.strip().splitlines()[-1])
