@@ -133,14 +133,19 @@ class ParamSpace:
     def dim(self) -> int:
         return int(self.u0.size)
 
+    def _segments(self):
+        """(key, transform, slice of the flat coordinates) for each fitted key, in order."""
+        start = 0
+        for key, tr, n in zip(self.keys, self.transforms, self.sizes):
+            yield key, tr, slice(start, start + n)
+            start += n
+
     def to_params(self, z, base):
         """Params equal to ``base`` except the fitted keys, set from z (traceable)."""
         u = jnp.asarray(self.u0) + jnp.asarray(self.s) * z
         values = {}
-        i = 0
-        for key, tr, n in zip(self.keys, self.transforms, self.sizes):
-            seg = u[i:i + n]
-            i += n
+        for key, tr, sl in self._segments():
+            seg = u[sl]
             if tr == "logit":
                 lo, hi = LOGIT_KEYS[key]
                 v = lo + (hi - lo) * jax.nn.sigmoid(seg)
@@ -156,35 +161,31 @@ class ParamSpace:
         """d theta / d z per coordinate (diagonal), for the delta-method standard errors."""
         u = self.u0 + self.s * np.asarray(z, dtype=np.float64)
         out = np.empty_like(u)
-        i = 0
-        for key, tr, n in zip(self.keys, self.transforms, self.sizes):
-            seg = u[i:i + n]
+        for key, tr, sl in self._segments():
+            seg = u[sl]
             if tr == "logit":
                 lo, hi = LOGIT_KEYS[key]
                 sg = 1.0 / (1.0 + np.exp(-seg))
-                out[i:i + n] = (hi - lo) * sg * (1.0 - sg)
+                out[sl] = (hi - lo) * sg * (1.0 - sg)
             elif tr == "log":
-                out[i:i + n] = np.exp(seg)
+                out[sl] = np.exp(seg)
             else:
-                out[i:i + n] = 1.0
-            i += n
+                out[sl] = 1.0
         return out * self.s
 
     def theta(self, z) -> np.ndarray:
         """Fitted values (flat, physical units) at z."""
         u = self.u0 + self.s * np.asarray(z, dtype=np.float64)
         out = np.empty_like(u)
-        i = 0
-        for key, tr, n in zip(self.keys, self.transforms, self.sizes):
-            seg = u[i:i + n]
+        for key, tr, sl in self._segments():
+            seg = u[sl]
             if tr == "logit":
                 lo, hi = LOGIT_KEYS[key]
-                out[i:i + n] = lo + (hi - lo) / (1.0 + np.exp(-seg))
+                out[sl] = lo + (hi - lo) / (1.0 + np.exp(-seg))
             elif tr == "log":
-                out[i:i + n] = np.exp(seg)
+                out[sl] = np.exp(seg)
             else:
-                out[i:i + n] = seg
-            i += n
+                out[sl] = seg
         return out
 
 
