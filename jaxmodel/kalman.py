@@ -1,8 +1,8 @@
 """Kalman-filter mode, US 4,680,715 (``Config(mode="kalman")``).
 
-An error-state Kalman filter with five states and small fixed-size jnp matrices:
+An error-state Kalman filter with seven states and small fixed-size jnp matrices:
 
-    x = [dth1, dth2, eps, dN, dE]
+    x = [dth1, dth2, eps, dN, dE, bN, bE]
 
 * Course-error model of claim 1: dth = dth1 + dth2 + dth3, with dth1 a first-order
   Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma kf_gm_sigma_deg), dth2 a
@@ -13,6 +13,11 @@ An error-state Kalman filter with five states and small fixed-size jnp matrices:
 * North/east position errors dN, dE of the position computer, fed by the course error of the
   dead-reckoned course: dN' = dN - s sin(th) dth2, dE' = dE + s cos(th) dth2 (s: corrected
   distance of the sample).
+* North/east errors bN, bE of the position fixes: first-order Gauss-Markov (kf_fix_gm_tau_s,
+  kf_fix_gm_sigma_m), on top of white noise (kf_fix_sigma_m).  Claim 1 takes the fix errors as
+  white only; a GNSS receiver's are not (multipath, atmosphere: correlated over tens of
+  seconds), and a filter that takes a 30-s-correlated error for white reads it as a course
+  error.  kf_fix_gm_sigma_m = 0 is the seed's white model.
 
 Our reading of the seed for an odometer + compass system.  The seed's course reference is a
 single course sensor; here two course signals are combined, so the model describes the error
@@ -25,7 +30,7 @@ component is given to the sensor whose physics it describes:
 * the corrected course is C_th = H_W - dth2^, and only dth2 drives the position errors.
 Tried on simulated drives: putting dth1 into the dead-reckoned course as well (C_th = H_W -
 dth1^ - dth2^) tunes to a vanishing dth1 and is no better; this split uses all three parts.
-The position fixes (fix_east_m, fix_north_m when fix_valid) measure dN, dE.
+The position fixes (fix_east_m, fix_north_m when fix_valid) measure dN - bN, dE - bE.
 
 Steps of claim 1, per sample:
 1. Plausibility of the speed V_M = AD/dt: implausible pulse counts (the odometer's own check)
@@ -51,11 +56,13 @@ Steps of claim 1, per sample:
    kf_white_sigma_deg^2 + (kf_compass_ec_weight E_C)^2) * max(1, kf_compass_corr_m / |AD|):
    the white compass noise is counted once per kf_compass_corr_m of road, so a stationary
    vehicle gains no information from repeating the same reading; position fixes (2-D,
-   R = kf_fix_sigma_m^2 I, white as claim 1 says).  Joseph form, then symmetrized.
+   H = [[0, 0, 0, 1, 0, -1, 0], [0, 0, 0, 0, 1, 0, -1]], R = kf_fix_sigma_m^2 I).  Joseph form,
+   then symmetrized.
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
 
 Without fixes the filter runs on the compass alone.  All noise parameters are kf_* entries of
-Params; everything is jnp with masks, so it is jit/vmap/grad-safe.
+Params; everything is jnp with masks, so it is jit/vmap/grad-safe.  Their defaults were fitted by
+gradient descent on simulated drives (bench/tune_kalman.py, docs/calibration-kalman.md).
 """
 
 from __future__ import annotations
@@ -68,37 +75,40 @@ import numpy as np
 from .angles import safe_div, wrap
 from .params import deg
 
-N_STATES = 5
+N_STATES = 7
 MAX_DT_S = 60.0
 """Longest time step the error model propagates over (a logging gap counts as this)."""
 MAX_FIX_M = 1.0e7
 """Fixes (and a position computer) farther than this from the origin are not plausible (m)."""
 MAX_GATE_SCALE = 1.0e12
 """Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
-I_GM, I_DRIFT, I_RAMP, I_N, I_E = range(N_STATES)
-H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0]])
-H_MAP = np.array([[0.0, 1.0, 0.0, 0.0, 0.0]])
-H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]])
+I_GM, I_DRIFT, I_RAMP, I_N, I_E, I_FIX_N, I_FIX_E = range(N_STATES)
+H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+H_MAP = np.array([[0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0]])
 
 
 class KalmanState(NamedTuple):
     x: jnp.ndarray        # east, m (position computer, CRE)
     y: jnp.ndarray        # north, m (position computer, CRN)
-    err: jnp.ndarray      # (5,) error-state estimate [dth1, dth2, eps, dN, dE] (rad, rad, rad/s, m, m)
-    cov: jnp.ndarray      # (5, 5) its covariance
+    err: jnp.ndarray      # (7,) error-state estimate [dth1, dth2, eps, dN, dE, bN, bE] (rad, rad, rad/s, m x 4)
+    cov: jnp.ndarray      # (7, 7) its covariance
     speed: jnp.ndarray    # last plausible signed speed, m/s
     active: jnp.ndarray   # 1.0 once the wheel heading has been started (filter running)
     fixes: jnp.ndarray    # number of position fixes used
 
 
 def initial_covariance(params):
-    """P0 = diag(sigma_gm^2, sigma_heading0^2, sigma_ramp0^2, sigma_pos0^2, sigma_pos0^2)."""
+    """P0 = diag(sigma_gm^2, sigma_heading0^2, sigma_ramp0^2, sigma_pos0^2, sigma_pos0^2, sigma_fix_gm^2,
+    sigma_fix_gm^2)."""
     return jnp.diag(jnp.stack([
         deg(params.kf_gm_sigma_deg) ** 2,
         deg(params.kf_heading_sigma0_deg) ** 2,
         (deg(params.kf_ramp_sigma0_deg_per_min) / 60.0) ** 2,
         params.kf_pos_sigma0_m ** 2,
         params.kf_pos_sigma0_m ** 2,
+        params.kf_fix_gm_sigma_m ** 2,
+        params.kf_fix_gm_sigma_m ** 2,
     ]))
 
 
@@ -119,12 +129,15 @@ def transition(params, dt, s, course, alpha=0.0):
     sn, cs = jnp.sin(course), jnp.cos(course)
     z = jnp.zeros_like(dt)
     one = jnp.ones_like(dt)
+    ef = jnp.exp(-dt / params.kf_fix_gm_tau_s)
     phi = jnp.stack([
-        jnp.stack([e1, z, z, z, z]),
-        jnp.stack([z, one, dt, z, z]),
-        jnp.stack([z, z, one, z, z]),
-        jnp.stack([z, -s * sn, z, one, z]),
-        jnp.stack([z, s * cs, z, z, one]),
+        jnp.stack([e1, z, z, z, z, z, z]),
+        jnp.stack([z, one, dt, z, z, z, z]),
+        jnp.stack([z, z, one, z, z, z, z]),
+        jnp.stack([z, -s * sn, z, one, z, z, z]),
+        jnp.stack([z, s * cs, z, z, one, z, z]),
+        jnp.stack([z, z, z, z, z, ef, z]),
+        jnp.stack([z, z, z, z, z, z, ef]),
     ])
     q11 = sig_gm2 * (1.0 - e1 * e1)
     q22 = q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s) + (params.kf_turn_sigma * alpha) ** 2
@@ -136,12 +149,15 @@ def transition(params, dt, s, course, alpha=0.0):
     qnn = along * cs * cs + cross * sn * sn + qp
     qee = along * sn * sn + cross * cs * cs + qp
     qne = (along - cross) * sn * cs
+    qf = params.kf_fix_gm_sigma_m ** 2 * (1.0 - ef * ef)
     q = jnp.stack([
-        jnp.stack([q11, z, z, z, z]),
-        jnp.stack([z, q22, q23, z, z]),
-        jnp.stack([z, q23, q33, z, z]),
-        jnp.stack([z, z, z, qnn, qne]),
-        jnp.stack([z, z, z, qne, qee]),
+        jnp.stack([q11, z, z, z, z, z, z]),
+        jnp.stack([z, q22, q23, z, z, z, z]),
+        jnp.stack([z, q23, q33, z, z, z, z]),
+        jnp.stack([z, z, z, qnn, qne, z, z]),
+        jnp.stack([z, z, z, qne, qee, z, z]),
+        jnp.stack([z, z, z, z, z, qf, z]),
+        jnp.stack([z, z, z, z, z, z, qf]),
     ])
     return phi, q
 
@@ -170,11 +186,13 @@ def _left(pattern, a, m):
     return jnp.stack(rows)
 
 
-PHI_PATTERN = np.array([[1, 0, 0, 0, 0],
-                        [0, 1, 1, 0, 0],
-                        [0, 0, 1, 0, 0],
-                        [0, 1, 0, 1, 0],
-                        [0, 1, 0, 0, 1]], dtype=bool)
+PHI_PATTERN = np.array([[1, 0, 0, 0, 0, 0, 0],
+                        [0, 1, 1, 0, 0, 0, 0],
+                        [0, 0, 1, 0, 0, 0, 0],
+                        [0, 1, 0, 1, 0, 0, 0],
+                        [0, 1, 0, 0, 1, 0, 0],
+                        [0, 0, 0, 0, 0, 1, 0],
+                        [0, 0, 0, 0, 0, 0, 1]], dtype=bool)
 """Nonzeros of the transition matrix of ``transition`` (predict relies on it)."""
 
 
@@ -197,29 +215,32 @@ def _inv(s):
     return jnp.stack([jnp.stack([d, -b]), jnp.stack([-c, a])]) / det
 
 
-def update(err, cov, nu, h, r, mask, gate):
-    """Measurement update with innovation ``nu`` (m,), a constant H (m, 5), R (m, m); Joseph form.
+def update(err, cov, nu, h, r, mask, gate, pattern=None):
+    """Measurement update with innovation ``nu`` (m,), H (m, N_STATES), R (m, m); Joseph form.
 
-    ``h`` must be concrete (a numpy array or a constant): its zeros are skipped.  ``gate`` > 0:
-    soft gate, R is scaled by max(1, d^2 / gate^2), d^2 = nu^T S^-1 nu (S without the scaling);
-    gate <= 0 disables it.  ``mask`` (bool) False leaves (err, cov) as they are.
+    ``pattern`` (static bool, shape of H) marks where H may be nonzero; the rest is skipped.  When
+    it is None, ``h`` must be concrete (a numpy array or a constant) and its zeros are the pattern.
+    ``gate`` > 0: soft gate, R is scaled by max(1, d^2 / gate^2), d^2 = nu^T S^-1 nu (S without
+    the scaling); gate <= 0 disables it.  ``mask`` (bool) False leaves (err, cov) as they are.
     Returns (err, cov, d^2).
     """
-    h = np.asarray(h, dtype=np.float64)
+    if pattern is None:
+        h = np.asarray(h, dtype=np.float64)
+        pattern = h != 0.0
     hj = jnp.asarray(h)
-    hp = _left(h != 0.0, hj, cov)                      # H P, (m, 5)
-    hph = _left(h != 0.0, hj, hp.T)                    # H P H^T, (m, m)
+    hp = _left(pattern, hj, cov)                       # H P, (m, N_STATES)
+    hph = _left(pattern, hj, hp.T)                     # H P H^T, (m, m)
     s0 = hph + r
     d2 = _mm(_mm(nu, _inv(s0)), nu)
     scale = jnp.where(gate > 0.0, jnp.clip(d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2, 1.0, MAX_GATE_SCALE), 1.0)
     s = hph + scale * r
-    k = _mm(hp.T, _inv(s))                             # (5, m)
+    k = _mm(hp.T, _inv(s))                             # (N_STATES, m)
     k = jnp.where(mask, k, 0.0)
     x = err + _mm(k, nu)
     # Joseph form (I - K H) P (I - K H)^T + K R K^T, evaluated in factored order with rank-m
     # products (A = I - K H): AP = P - K (H P), then AP A^T = AP - (AP H^T) K^T.
     ap = cov - _mm(k, hp)
-    aph = _left(h != 0.0, hj, ap.T).T                  # AP H^T, (5, m)
+    aph = _left(pattern, hj, ap.T).T                   # AP H^T, (N_STATES, m)
     p = ap - _mm(aph, k.T) + scale * _mm(_mm(k, r), k.T)
     return x, 0.5 * (p + p.T), d2
 
@@ -297,21 +318,22 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     # selector of US 4,734,863 FIG. 8F chose the street heading (course support data of the
     # seed's input means), the map course (H = [0, 1, 0, 0, 0]: the compass's colored error
     # dth1 is not in it).
-    nu_c = wrap(wrap(wheel_heading - compass_heading) - (err_p[I_GM] + err_p[I_DRIFT]))
-    use_c = active & compass_ok & ~map_used & (jnp.abs(s) > 0.0)
-    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], H_COMPASS, compass_noise(params, e_c, s)[None, None], use_c,
-                             params.kf_gate_sigma)
-    nu_m = wrap(wrap(wheel_heading - map_heading) - err_u[I_DRIFT])
-    use_m = active & map_used & (jnp.abs(s) > 0.0)
-    err_u, cov_u, _ = update(err_u, cov_u, nu_m[None], H_MAP, map_noise(params, s)[None, None], use_m,
-                             params.kf_gate_sigma)
+    # One scalar update serves both (they never happen on the same sample): H_MAP is H_COMPASS
+    # with the dth1 entry zeroed, so the static pattern is H_COMPASS's and the entry is traced.
+    h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
+    course_meas = jnp.where(map_used, map_heading, compass_heading)
+    nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
+    r_c = jnp.where(map_used, map_noise(params, s), compass_noise(params, e_c, s))
+    use_c = active & (compass_ok | map_used) & (jnp.abs(s) > 0.0)
+    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
+                             pattern=H_COMPASS != 0.0)
 
     # 4b. Position fix update (the first fix without the gate).
     fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
               & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
     fe = jnp.where(fix_ok, fix_east, 0.0)
     fn = jnp.where(fix_ok, fix_north, 0.0)
-    nu_f = jnp.stack([north - fn - err_u[I_N], east - fe - err_u[I_E]])
+    nu_f = jnp.stack([north - fn - (err_u[I_N] - err_u[I_FIX_N]), east - fe - (err_u[I_E] - err_u[I_FIX_E])])
     r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
     gate_f = jnp.where(ks.fixes > 0.5, params.kf_gate_sigma, 0.0)
     err_u, cov_u, _ = update(err_u, cov_u, nu_f, H_FIX, r_f, fix_ok, gate_f)
