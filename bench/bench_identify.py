@@ -53,6 +53,7 @@ def main():
     ap.add_argument("--fit", default="P,B,T_F,a,T_C,D_N", help="default: the default fit set of identify")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", default=None, help="keep drives, fitted file and plots in this folder")
+    ap.add_argument("--increment-s", default=None, help="passed to identify (default: identify's own)")
     args = ap.parse_args()
 
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="odocompass-bar-"))
@@ -75,6 +76,8 @@ def main():
     out = work / "fitted.json"
     cmd = [str(ROOT / ".venv" / "bin" / "odocompass"), "identify", *map(str, train), "--params", str(work / "start.json"),
            "--out", str(out), "--fit", args.fit, "--validate", *map(str, held), "--plots", str(work / "plots")]
+    if args.increment_s is not None:
+        cmd += ["--increment-s", str(args.increment_s)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
