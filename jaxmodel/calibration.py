@@ -58,6 +58,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
+from .packed import packed_state
 from .params import deg
 
 
@@ -95,23 +96,11 @@ class CalibrationFields(NamedTuple):
     prev_bounded: jnp.ndarray  # 1.0 if the last completed window was bounded
 
 
-class CalibrationState(NamedTuple):
-    """The calibration's state as one float64 vector in CalibrationFields order; each field reads
-    as an attribute (``cs.ratio``, also on stacked states).  One carry buffer instead of 27
-    scalars: XLA:CPU then updates it with far fewer kernels per scan step (bench/bench_run.py)."""
-
-    vector: jnp.ndarray
-
-    def fields(self) -> CalibrationFields:
-        return CalibrationFields(*[self.vector[..., i] for i in range(len(CalibrationFields._fields))])
-
-
-for _i, _name in enumerate(CalibrationFields._fields):
-    setattr(CalibrationState, _name, property(lambda self, i=_i: self.vector[..., i]))
-
-
-def _pack(fields: CalibrationFields) -> CalibrationState:
-    return CalibrationState(jnp.stack([jnp.asarray(f, jnp.float64) for f in fields], axis=-1))
+CalibrationState = packed_state(
+    CalibrationFields, "CalibrationState",
+    "The calibration's state as one float64 vector in CalibrationFields order; each field reads as "
+    "an attribute (``cs.ratio``, also on stacked states); see jaxmodel/packed.py.")
+CalibrationState.__module__ = __name__
 
 
 def _coefficients(params, ratio):
@@ -124,7 +113,7 @@ def init_calibration_state(params):
     z = jnp.zeros((), jnp.float64)
     ratio = jnp.asarray(params.dpp_right / params.dpp_left, jnp.float64)
     w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
-    return _pack(CalibrationFields(
+    return CalibrationState.pack(CalibrationFields(
         dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
         ratio=ratio, mean=ratio, weight=w0, weight2=w0 * w0, m2=z, updates=z, win_left=z, win_right=z, win_distance=z,
         win_ref=z, win_hsum=z, win_hn=z,
@@ -231,7 +220,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     dpp_left, dpp_right = _coefficients(params, ratio)
 
     zero_if = lambda cond, v: jnp.where(cond, 0.0, v)  # noqa: E731
-    return _pack(CalibrationFields(
+    return CalibrationState.pack(CalibrationFields(
         dpp_left=jnp.where(stretch_done, dpp_left, cs.dpp_left),
         dpp_right=jnp.where(stretch_done, dpp_right, cs.dpp_right),
         ratio=ratio, mean=mean, weight=jnp.where(done, weight, cs.weight),

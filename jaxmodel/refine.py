@@ -20,6 +20,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
+from .packed import packed_state
 from .params import deg
 
 
@@ -36,24 +37,15 @@ class _RefineFields(NamedTuple):
     updates: jnp.ndarray         # number of accepted refinements
 
 
-class RefineState(NamedTuple):
-    """The refinement's state as one float64 vector (fields in _RefineFields order): one carry
-    buffer instead of ten, which XLA:CPU updates with fewer kernels inside the scan."""
-
-    vector: jnp.ndarray
-
-
-def _unpack(rs):
-    return _RefineFields(*[rs.vector[..., i] for i in range(len(_RefineFields._fields))])
-
-
-def _pack(fields):
-    return RefineState(jnp.stack(list(fields), axis=-1))
+RefineState = packed_state(
+    _RefineFields, "RefineState",
+    "The refinement's state as one float64 vector in _RefineFields order (jaxmodel/packed.py).")
+RefineState.__module__ = __name__
 
 
 def init_refine_state():
     z = jnp.zeros((), jnp.float64)
-    return _pack(_RefineFields(z, z, z, z, z, z, jnp.ones((), jnp.float64), z, z, z))
+    return RefineState.pack(_RefineFields(z, z, z, z, z, z, jnp.ones((), jnp.float64), z, z, z))
 
 
 def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, compass_ok, enabled):
@@ -65,7 +57,7 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
     """
     if not enabled:
         return rs, a
-    rs = _unpack(rs)
+    rs = rs.fields()
     turning = jnp.abs(curvature) > params.turn_curvature
     compass_good = compass_ok & (e_c < deg(params.refine_compass_max_error_deg))
     speed_ok = (speed >= params.refine_speed_min) & (speed <= params.refine_speed_max)
@@ -119,4 +111,4 @@ def refine_step(params, rs, a, *, alpha, delta, d_t, speed, curvature, e_c, comp
         turn_bad_samples=jnp.where(ends, 0.0, turn_bad),
         updates=rs.updates + jnp.where(accept, 1.0, 0.0),
     )
-    return _pack(new), a_new
+    return RefineState.pack(new), a_new
