@@ -302,3 +302,41 @@ def test_map_course_updates_the_drift_not_the_compass_error():
     assert float(by_compass.err[K.I_GM]) > 0.0 and float(by_compass.err[K.I_DRIFT]) > 0.0
     # the drift moves towards the street heading: corrected course between wheel and map
     assert 0.48 < float(h_map) < 0.5
+
+
+def test_white_fix_model_when_the_colored_sigma_is_zero():
+    """kf_fix_gm_sigma_m = 0 is the seed's white-fix model: the fix-error states bN, bE never move
+    and carry no variance, so the filter is the 5-state one."""
+    inputs, _ = _sim("urban", 300.0, 27, 4.0)
+    p = jm.make_params(kf_fix_gm_sigma_m=0.0, kf_fix_sigma_m=2.3)
+
+    @jax.jit
+    def states(p, inputs):
+        def body(s, x):
+            s, _ = step(p, s, x, KALMAN)
+            return s, (s.kalman.err, s.kalman.cov)
+        return jax.lax.scan(body, init_state(p), inputs)[1]
+
+    err, cov = (np.asarray(a) for a in states(p, inputs))
+    assert np.all(err[:, K.I_FIX_N:] == 0.0)
+    assert np.all(cov[:, K.I_FIX_N:, :] == 0.0) and np.all(cov[:, :, K.I_FIX_N:] == 0.0)
+    assert np.all(np.linalg.eigvalsh(cov[:, :K.I_FIX_N, :K.I_FIX_N]) > 0.0)
+
+
+@pytest.mark.slow
+def test_colored_fix_errors_are_better_modelled_than_white():
+    """Fixes whose error is half white, half correlated over 30 s (the simulator's): the 7-state
+    default beats the same filter told the fixes are white with the same total sigma, on average
+    over six urban drives, in position and in heading.  Measured (seeds 31-36): position 2.35 m
+    against 2.62 m (better on five of six), heading 0.466 deg against 0.515 deg."""
+    colored = jm.make_params()
+    total = math.hypot(colored.kf_fix_sigma_m, colored.kf_fix_gm_sigma_m)
+    white = jm.make_params(kf_fix_gm_sigma_m=0.0, kf_fix_sigma_m=total)
+    c, w = [], []
+    for seed in range(31, 37):
+        inputs, truth = _sim("urban", 900.0, seed, 4.0)
+        c.append(_rmse(jm.run(colored, inputs, KALMAN), truth))
+        w.append(_rmse(jm.run(white, inputs, KALMAN), truth))
+    (h_c, pos_c), (h_w, pos_w) = np.mean(c, axis=0), np.mean(w, axis=0)
+    assert pos_c < 0.95 * pos_w, (c, w)
+    assert h_c <= h_w, (c, w)
