@@ -165,21 +165,50 @@ def make_params(values: Mapping[str, Any] | None = None, **overrides: Any) -> Pa
     return Params(**{k: jnp.asarray(_to_number(k, v), dtype=jnp.float64) for k, v in merged.items()})
 
 
+POSITIVE_KEYS = (
+    "B", "T_F", "T_R", "dpp_left", "dpp_right", "counter_modulus", "T_C", "D_N", "curvature_window_m", "sdd_T", "K1",
+    "K2", "F_update_distance_m", "max_speed", "refine_smoothing_m", "straight_distance_m", "reliability_scale_deg",
+    "turn_curvature", "compass_error_scale_deg", "refine_compass_max_error_deg",
+    "cal_check_distance_m", "cal_ratio_bound", "cal_stretch_distance_m", "cal_compass_tolerance_deg",
+    "cal_sanity_bound", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
+    "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
+    "kf_max_yaw_rate_deg_s", "kf_speed_factor")
+"""Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
+NON_NEGATIVE_KEYS = (
+    "a", "field_magnitude", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
+    "wheel_error_K", "heading_error_K", "map_threshold_deg", "cal_prior_weight", "cal_significance",
+    "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
+    "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
+    "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd")
+"""Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""
+FRACTION_KEYS = ("refine_compass_bad_fraction", "cal_no_compass_weight")
+"""Fractions and weights in [0, 1]."""
+
+
 def validate_params(params: Params) -> None:
     """Raise ParameterError naming every physically invalid parameter (used before estimation and by the FMU)."""
     problems = []
+
     def val(k):
         return np.asarray(getattr(params, k), dtype=np.float64)
+
     for k in PARAMETER_KEYS:
         if not np.all(np.isfinite(val(k))):
             problems.append(f"{k} is not finite")
     if not 0.0 <= float(val("P")) < 1.0:
         problems.append(f"P={float(val('P'))} outside [0, 1)")
-    for k in ("B", "T_F", "T_R", "dpp_left", "dpp_right", "counter_modulus", "T_C", "D_N",
-              "curvature_window_m", "sdd_T", "K1", "K2", "F_update_distance_m", "max_speed",
-              "refine_smoothing_m", "straight_distance_m", "reliability_scale_deg"):
+    for k in POSITIVE_KEYS:
         if not float(val(k)) > 0.0:
             problems.append(f"{k}={float(val(k))} must be positive")
+    for k in NON_NEGATIVE_KEYS:
+        if not float(val(k)) >= 0.0:
+            problems.append(f"{k}={float(val(k))} must not be negative")
+    for k in FRACTION_KEYS:
+        if not 0.0 <= float(val(k)) <= 1.0:
+            problems.append(f"{k}={float(val(k))} must be in [0, 1]")
+    if not float(val("refine_speed_min")) <= float(val("refine_speed_max")):
+        problems.append(f"refine_speed_min={float(val('refine_speed_min'))} above "
+                        f"refine_speed_max={float(val('refine_speed_max'))}")
     if float(val("sensor_axle")) not in (0.0, 1.0):
         problems.append(f"sensor_axle={float(val('sensor_axle'))} must be front (1) or rear (0)")
     if not 0.0 < float(val("curvature_clip")) < 1.0:

@@ -198,3 +198,29 @@ def test_invalid_parameters_are_named(bad, name):
         jm.validate_params(jm.make_params(bad))
     with pytest.raises(jm.ParameterError, match="sensor_axle"):
         jm.make_params(sensor_axle="middle")
+
+
+@pytest.mark.parametrize("key", jm.params.POSITIVE_KEYS)
+def test_every_positive_parameter_is_checked(key):
+    """Time constants, lengths and divisors: 0 is refused with the key named (a negative Kalman
+    time constant used to run and return positions of 1e218 m)."""
+    with pytest.raises(jm.ParameterError, match=f"{key}=0.0 must be positive"):
+        jm.validate_params(jm.make_params({key: 0.0}))
+
+
+@pytest.mark.parametrize("key", jm.params.NON_NEGATIVE_KEYS)
+def test_every_non_negative_parameter_is_checked(key):
+    jm.validate_params(jm.make_params({key: 0.0}))  # zero switches an effect off: allowed
+    with pytest.raises(jm.ParameterError, match=f"{key}=-1.0 must not be negative"):
+        jm.validate_params(jm.make_params({key: -1.0}))
+
+
+@pytest.mark.parametrize("key", jm.params.FRACTION_KEYS)
+def test_fractions_are_checked(key):
+    with pytest.raises(jm.ParameterError, match=rf"{key}=1.5 must be in \[0, 1\]"):
+        jm.validate_params(jm.make_params({key: 1.5}))
+
+
+def test_refinement_speed_band_must_not_be_inverted():
+    with pytest.raises(jm.ParameterError, match="refine_speed_min=30.0 above refine_speed_max"):
+        jm.validate_params(jm.make_params(refine_speed_min=30.0, refine_speed_max=10.0))
