@@ -70,6 +70,10 @@ def main():
     start = jm.make_params(**{k: float(v) for k, v in (s.split("=", 1) for s in args.set)})
     frozen = {k for k in args.freeze.split(",") if k}
     keys = [k for k in TUNED if k not in frozen]
+    for k in keys:  # fitted in log space
+        if not float(getattr(start, k)) > 0.0:
+            raise SystemExit(f"tune_kalman: {k} starts at {float(getattr(start, k))}; a fitted key needs a positive "
+                             f"start value (or --freeze {k})")
     batch, ref, mask, with_fixes = training_batch()
     config = jm.Config(mode="kalman")
 
@@ -87,11 +91,13 @@ def main():
     opt = optax.adam(args.learning_rate)
     opt_state = opt.init(z)
     t0 = time.perf_counter()
-    for it in range(args.iterations):
+    for it in range(args.iterations + 1):
         (value, (heading, position)), grad = value_and_grad(z)
         print(f"{it:4d} loss {float(value):.4f}  heading RMSE {math.degrees(math.sqrt(float(heading)) * HEADING_SCALE):.3f} deg"
               f"  position RMSE {math.sqrt(float(position)) * POSITION_SCALE_M:.3f} m  {time.perf_counter() - t0:.0f} s",
               flush=True)
+        if it == args.iterations:  # the printed loss is that of the values written below
+            break
         updates, opt_state = opt.update(grad, opt_state)
         z = optax.apply_updates(z, updates)
     print(json.dumps({k: float(jnp.exp(v)) for k, v in z.items()}))

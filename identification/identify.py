@@ -433,6 +433,10 @@ def main(args) -> int:
                               plots_dir=args.plots, **kwargs)
     report["wall_time_s"] = time.perf_counter() - t0
     report["start_file"] = str(args.params)
+    try:  # e.g. refine_speed_min and refine_speed_max fitted independently and crossed
+        jaxmodel.validate_params(fitted)
+    except jaxmodel.ParameterError as exc:
+        raise OdoCompassError(f"identify: the fitted parameters are not valid, nothing written to {args.out}: {exc}") from None
     jaxmodel.save_params(args.out, fitted, report)
     print(R.format_summary(report))
     for w in report["warnings"]:

@@ -6,7 +6,7 @@ Parameter space
 The optimiser sees one flat vector ``z``, *whitened* so that the prior is N(0, I):
 
     u = u0 + s * z            (u: unconstrained value, u0: the starting file's value, s: prior std)
-    theta = g(u)              g = sigmoid for P and curvature_clip (kept in (0, 1)),
+    theta = g(u)              g = sigmoid for P, curvature_clip and the fractions (kept in (0, 1)),
                               exp for lengths, gains and other positive constants,
                               identity for signed quantities (compass offsets, rotation,
                               variation, the deviation table).
@@ -72,7 +72,8 @@ DEFAULT_FIT = ("P", "B", "T_F", "a", "T_C", "D_N")
 NOT_FITTABLE = ("sensor_axle", "counter_modulus")
 """Discrete keys: the axle is a choice and the counter modulus an integer property of the hardware."""
 
-LOGIT_KEYS = {"P": (0.0, 1.0), "curvature_clip": (0.0, 1.0)}
+LOGIT_KEYS = {"P": (0.0, 1.0), "curvature_clip": (0.0, 1.0), "refine_compass_bad_fraction": (0.0, 1.0),
+              "cal_no_compass_weight": (0.0, 1.0)}
 """Bounded keys, fitted through a sigmoid onto (lo, hi)."""
 
 SIGNED_KEYS = ("variation_deg", "rotation_deg", "X0", "Y0", "deviation_deg")

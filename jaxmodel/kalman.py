@@ -21,7 +21,7 @@ An error-state Kalman filter with seven states and small fixed-size jnp matrices
 
 Our reading of the seed for an odometer + compass system.  The seed's course reference is a
 single course sensor; here two course signals are combined, so the model describes the error
-of their difference, z = wrap(H_W - H_C) = dth1 + dth2 + dth3 (H = [1, 1, 0, 0, 0]), and each
+of their difference, z = wrap(H_W - H_C) = dth1 + dth2 + dth3 (H = [1, 1, 0, 0, 0, 0, 0]), and each
 component is given to the sensor whose physics it describes:
 * the course that is dead-reckoned is the wheel heading H_W (the odometer integrates, so its
   error is the drift with a random ramp, dth2);
@@ -52,7 +52,9 @@ Steps of claim 1, per sample:
    reset, the model's odometer keeps integrating it).  Position computer: CRN += CV cos(C_th),
    CRE += CV sin(C_th) with the mid-sample course; the position corrections C(RN), C(RE) are fed
    back after every update (closed loop: dN^, dE^ are reset to 0).
-4. Updates: compass course (scalar, H = [1, 1, 0, 0, 0]) with R = (kf_compass_sigma_deg^2 +
+4. Updates: one scalar course update per sample, the compass course (H = [1, 1, 0, 0, 0, 0, 0])
+   or, where the map-heading selector chose the street heading, the map course
+   (H = [0, 1, 0, 0, 0, 0, 0], R from kf_map_sigma_deg); for the compass R = (kf_compass_sigma_deg^2 +
    kf_white_sigma_deg^2 + (kf_compass_ec_weight E_C)^2) * max(1, kf_compass_corr_m / |AD|):
    the white compass noise is counted once per kf_compass_corr_m of road, so a stationary
    vehicle gains no information from repeating the same reading; position fixes (2-D,
@@ -314,10 +316,9 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     north = ks.y + s * jnp.cos(course_mid)
     east = ks.x + s * jnp.sin(course_mid)
 
-    # 4a. Course update: the compass course (H = [1, 1, 0, 0, 0]) or, where the map-heading
-    # selector of US 4,734,863 FIG. 8F chose the street heading (course support data of the
-    # seed's input means), the map course (H = [0, 1, 0, 0, 0]: the compass's colored error
-    # dth1 is not in it).
+    # 4a. Course update: the compass course (H_COMPASS) or, where the map-heading selector of
+    # US 4,734,863 FIG. 8F chose the street heading (course support data of the seed's input
+    # means), the map course (H_MAP: the compass's colored error dth1 is not in it).
     # One scalar update serves both (they never happen on the same sample): H_MAP is H_COMPASS
     # with the dth1 entry zeroed, so the static pattern is H_COMPASS's and the entry is traced.
     h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))

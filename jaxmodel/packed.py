@@ -20,6 +20,11 @@ def packed_state(fields_type, name: str, doc: str):
     ``state.fields()`` unpacks to a ``fields_type``; ``Type.pack(fields)`` packs one.
     """
 
+    reserved = {"vector", "fields", "pack", "count", "index"}
+    clash = reserved.intersection(fields_type._fields) | {f for f in fields_type._fields if f.startswith("_")}
+    if clash:
+        raise ValueError(f"packed_state {name}: field names {sorted(clash)} would shadow the state's own attributes")
+
     class Packed(NamedTuple):
         vector: jnp.ndarray
 

@@ -175,7 +175,7 @@ POSITIVE_KEYS = (
     "kf_max_yaw_rate_deg_s", "kf_speed_factor")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
-    "a", "field_magnitude", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
+    "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
     "wheel_error_K", "heading_error_K", "map_threshold_deg", "cal_prior_weight", "cal_significance",
     "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",

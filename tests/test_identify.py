@@ -68,6 +68,16 @@ def test_param_space_round_trip_and_jacobian():
     assert 0.0 < float(p_far.P) <= 1.0 and float(p_far.B) > 0.0
 
 
+def test_fractions_are_fitted_inside_their_range():
+    """Every key validate_params keeps in [0, 1] goes through a sigmoid, so identify cannot write a
+    file that estimate refuses."""
+    for key in jm.params.FRACTION_KEYS:
+        space = L.make_space((key,), jm.make_params())
+        assert space.transforms == ("logit",)
+        for far in (-60.0, 60.0):
+            jm.validate_params(space.to_params(jnp.full(space.dim, far), jm.make_params()))
+
+
 def test_parse_fit_and_bad_keys():
     assert L.parse_fit(None) == ("P", "B", "T_F", "a", "T_C", "D_N")
     assert L.parse_fit("T_F, a,T_F") == ("T_F", "a")

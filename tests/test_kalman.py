@@ -291,7 +291,7 @@ def test_bar_15_minute_urban_drives_with_fixes():
 
 def test_map_course_updates_the_drift_not_the_compass_error():
     """Where the map-heading selector chose the street heading, the course measurement has
-    H = [0, 1, 0, 0, 0]: the compass's Gauss-Markov error dth1 is not observed by it."""
+    H = [0, 1, 0, 0, 0, 0, 0]: the compass's Gauss-Markov error dth1 is not observed by it."""
     p = jm.make_params()
     ks = K.init_kalman_state(p)._replace(active=jnp.ones(()), speed=jnp.asarray(10.0))
     kw = dict(dt=0.1, distance=1.0, alpha=0.0, wheel_heading=0.5, compass_heading=0.45, compass_ok=True, e_c=0.02,
