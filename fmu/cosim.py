@@ -393,10 +393,9 @@ def run_ssp(ssp_path: str | Path, stop_time: float = 600.0, step: float = 0.1,
 # ----------------------------------------------------------------------------------------------
 def plot_headings(result: CosimResult, path: str | Path, title: str = "OdoCompass FMU in a vehicle co-simulation",
                   ssp: Mapping[str, np.ndarray] | None = None) -> Path:
-    import matplotlib
+    from identification.plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     t = result.time
@@ -421,12 +420,7 @@ def plot_headings(result: CosimResult, path: str | Path, title: str = "OdoCompas
     lim = max(2.0, float(np.nanpercentile(np.abs(result.heading_error_deg()), 99.5)) * 1.3)
     axes[1].set_ylim(-lim, lim)
     axes[1].grid(alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def demo_cosimulation(out_dir: str | Path, estimator_fmu: str | Path | None = None,

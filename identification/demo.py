@@ -62,10 +62,9 @@ def estimate_modes(out_dir: Path, duration_s: float) -> dict[str, float]:
     _say("   " + "  ".join(f"{m:>13s}" for m in MODES_SHOWN))
     _say("   " + "  ".join(f"{rmse[m]:12.2f}°" for m in MODES_SHOWN))
 
-    import matplotlib
+    from .plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for mode in ("compass", "odometer", "complementary", "kalman"):
@@ -77,9 +76,7 @@ def estimate_modes(out_dir: Path, duration_s: float) -> dict[str, float]:
     ax.set_ylim(-15, 15)
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out_dir / "heading_error.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, out_dir / "heading_error.png", dpi=120)
     _say(f"   plot: {out_dir / 'heading_error.png'}")
     return rmse
 

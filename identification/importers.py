@@ -862,10 +862,9 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     (out_dir / "comma2k19.calibrated.params.json").write_text(json.dumps(cal_json, indent=2) + "\n")
 
     # Figures.
-    import matplotlib
+    from .plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     ax[0].plot(t, ref, label="reference (pose, camera axis)")
@@ -884,10 +883,7 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     ax[2].set_ylabel("error vs pose [deg]")
     ax[2].set_xlabel("time [s]")
     ax[2].legend(fontsize=8)
-    fig.tight_layout()
-    img_dir.mkdir(parents=True, exist_ok=True)
-    fig.savefig(img_dir / "comma2k19_headings.png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, img_dir / "comma2k19_headings.png", dpi=90)
 
     # Levelling evidence: compass offset against the road's pitch.
     arr = _load_comma(Path(real_dir) / "comma2k19_example")
@@ -914,9 +910,7 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     ax[1].set_ylabel("[deg]")
     ax[1].set_xlabel("time [s]")
     ax[1].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(img_dir / "comma2k19_levelling.png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, img_dir / "comma2k19_levelling.png", dpi=90)
     return res
 
 
@@ -1005,10 +999,9 @@ def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter:
         for name, h_deg in sources.items()}
     (out_dir / "husky.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
 
-    import matplotlib
+    from .plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     colors = {"nominal": "C0", "identified": "C3", "identified_wide_T_R_prior": "C2"}
     labels = {"nominal": "nominal", "identified": "identified (T_R prior 5 %)",
@@ -1046,10 +1039,7 @@ def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter:
     ax[1].set_ylabel("odometer - IMU yaw [deg]\n(restarted at the split)")
     ax[1].set_xlabel("time [s]")
     ax[1].legend(fontsize=8)
-    fig.tight_layout()
-    img_dir.mkdir(parents=True, exist_ok=True)
-    fig.savefig(img_dir / "husky_identification.png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, img_dir / "husky_identification.png", dpi=90)
     return res
 
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display), imported on first use."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -17,13 +18,23 @@ def _plt():
     return plt
 
 
+def save_figure(fig, path, dpi: int = 110) -> Path:
+    """Lay out ``fig``, write it as a PNG to ``path`` (creating the folder) and close it."""
+    path = Path(path)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
+
+
 def _name(drive) -> str:
     p = str(drive.metadata.get("path", "<columns>")) if getattr(drive, "metadata", None) else "<columns>"
     return Path(p).name if "/" in p else p
 
 
 def heading_error_plot(path: Path, ev_before, ev_after, drives, roles, mode: str) -> Path:
-    plt = _plt()
+    plt = pyplot()
     field = "wheel_heading" if mode == "odometer" else "heading"
     label = "odometer-only heading" if mode == "odometer" else f"{mode} heading"
     n = len(drives)
@@ -43,10 +54,7 @@ def heading_error_plot(path: Path, ev_before, ev_after, drives, roles, mode: str
         ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time, s")
     fig.suptitle(f"{label} error against the reference, before and after identification", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: float = 1.5):
@@ -109,7 +117,7 @@ def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: floa
 def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Path:
     from jaxmodel.track import effective_track, max_curvature
 
-    plt = _plt()
+    plt = pyplot()
     fig, (ax, axh) = plt.subplots(2, 1, figsize=(8, 6.5), gridspec_kw={"height_ratios": [3, 1]}, sharex=True)
     c_max = 0.98 * float(max_curvature(fitted.B, fitted.T_F))
     c = np.linspace(0.0, c_max, 300)
@@ -132,14 +140,11 @@ def track_plot(path: Path, start, fitted, ev_after, drives, n_train: int) -> Pat
         axh.set_yscale("log")
     axh.set_xlabel("|curvature| dD/AD (training data, from the reference heading)")
     axh.set_ylabel("samples")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def loss_plot(path: Path, stage_reports) -> Path:
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     for st in stage_reports:
         h = np.asarray(st["loss_history"], dtype=np.float64)
@@ -157,10 +162,7 @@ def loss_plot(path: Path, stage_reports) -> Path:
     ax.set_title("identification loss curve", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def write_all(out_dir: Path, ev_before, ev_after, drives, roles, start, fitted, stage_reports, mode, n_train):
