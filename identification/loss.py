@@ -111,6 +111,21 @@ DEFAULT_DECORRELATION_S = 10.0
 independent errors in the likelihood (standard errors scale with its square root)."""
 
 
+def _from_unconstrained(key: str, transform: str, u, xp):
+    """theta = g(u) for one fitted key (flat segment ``u``), with ``xp`` = numpy or jax.numpy.
+
+    The sigmoid is jax.nn.sigmoid under jax (its gradient stays finite far out), the same formula
+    in numpy."""
+    if transform == "logit":
+        lo, hi = LOGIT_KEYS[key]
+        if xp is jnp:
+            return lo + (hi - lo) * jax.nn.sigmoid(u)
+        return lo + (hi - lo) / (1.0 + np.exp(-u))
+    if transform == "log":
+        return xp.exp(u)
+    return u
+
+
 def _transform_of(key: str) -> str:
     if key in LOGIT_KEYS:
         return "logit"
@@ -146,14 +161,7 @@ class ParamSpace:
         u = jnp.asarray(self.u0) + jnp.asarray(self.s) * z
         values = {}
         for key, tr, sl in self._segments():
-            seg = u[sl]
-            if tr == "logit":
-                lo, hi = LOGIT_KEYS[key]
-                v = lo + (hi - lo) * jax.nn.sigmoid(seg)
-            elif tr == "log":
-                v = jnp.exp(seg)
-            else:
-                v = seg
+            v = _from_unconstrained(key, tr, u[sl], jnp)
             shape = np.shape(getattr(base, key))
             values[key] = v.reshape(shape) if shape else v[0]
         return base._replace(**values)
@@ -179,14 +187,7 @@ class ParamSpace:
         u = self.u0 + self.s * np.asarray(z, dtype=np.float64)
         out = np.empty_like(u)
         for key, tr, sl in self._segments():
-            seg = u[sl]
-            if tr == "logit":
-                lo, hi = LOGIT_KEYS[key]
-                out[sl] = lo + (hi - lo) / (1.0 + np.exp(-seg))
-            elif tr == "log":
-                out[sl] = np.exp(seg)
-            else:
-                out[sl] = seg
+            out[sl] = _from_unconstrained(key, tr, u[sl], np)
         return out
 
 
