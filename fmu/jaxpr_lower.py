@@ -442,25 +442,20 @@ class _Emitter:
         expr = tpl.py.format(*[_lit(a) for a in operands])
         if not any(isinstance(a, Ref) for a in operands):
             return _py(eval(expr, RUNTIME), kind)  # noqa: S307 - our own template on literals
-        if expr in self.cse:
-            return self.cse[expr]
-        self.counter += 1
-        ref = Ref(f"v{self.counter}")
-        self.lines.append(_Line(ref.name, tpl, tuple(operands), kind,
-                                tuple(a.name for a in operands if isinstance(a, Ref))))
-        self.cse[expr] = ref
-        self.kinds[ref.name] = kind
-        return ref
+        return self._local(expr, "v", tpl, operands, kind)
 
     def table(self, atoms, kind):
         """A local tuple (C: array) holding ``atoms``, for indexing with a data-dependent index."""
-        key = "(" + ", ".join(_lit(a) for a in atoms) + ",)"
+        return self._local("(" + ", ".join(_lit(a) for a in atoms) + ",)", "t", None, atoms, kind)
+
+    def _local(self, key: str, prefix: str, tpl, operands, kind):
+        """The local named by ``key`` (its Python text): the existing one, else a new line."""
         if key in self.cse:
             return self.cse[key]
         self.counter += 1
-        ref = Ref(f"t{self.counter}")
-        self.lines.append(_Line(ref.name, None, tuple(atoms), kind,
-                                tuple(a.name for a in atoms if isinstance(a, Ref))))
+        ref = Ref(f"{prefix}{self.counter}")
+        self.lines.append(_Line(ref.name, tpl, tuple(operands), kind,
+                                tuple(a.name for a in operands if isinstance(a, Ref))))
         self.cse[key] = ref
         self.kinds[ref.name] = kind
         return ref
