@@ -46,6 +46,27 @@ def seed_model_drive(segments, params, dt=0.1, heading0=0.0, field=20.0, compass
                 compass_x=cx, compass_y=cy, true_heading=wrapped)
 
 
+def rear_axle_columns(t, rate, speed, dpp, track, field, start_pulses, modulus=65536):
+    """Log columns of a rear-axle drive (dD = dpsi T_R) from sample times t (s) and yaw rate (rad/s):
+    exact pulse counts from ``start_pulses`` wrapping at ``modulus``, a clean compass of ``field``
+    and the true heading as the reference."""
+    dts = np.diff(t, prepend=t[0])
+    dpsi = rate * dts
+    psi = np.cumsum(dpsi)
+    ad = speed * dts
+    dD = dpsi * track
+    left = start_pulses[0] + np.floor(np.cumsum(ad + dD / 2) / dpp)
+    right = start_pulses[1] + np.floor(np.cumsum(ad - dD / 2) / dpp)
+    return {
+        "time_s": t,
+        "left_pulses": (left % modulus).astype(np.int64),
+        "right_pulses": (right % modulus).astype(np.int64),
+        "compass_x": field * np.cos(psi),
+        "compass_y": field * np.sin(psi),
+        "ref_heading_deg": np.rad2deg(psi),
+    }
+
+
 def city_blocks(n_blocks=6, block=120.0, speed=10.0, radius=15.0, sign=1.0):
     """Straights joined by 90-degree turns, alternating right and left."""
     segs = []

@@ -13,6 +13,8 @@ from identification import DriveLogError
 from identification.drive_log import (INTEGER_COLUMNS, Drive, drive_from_columns, read_drive, read_table,
                                       stack_drives, stack_reference, wrap_deg, wrap_rad, write_drive)
 
+from drives import rear_axle_columns
+
 FORMATS = ("csv", "parquet", "mf4")
 MODULUS = 65536
 
@@ -27,21 +29,7 @@ def synthetic_columns(n=120, dt=0.1, speed=10.0, turn_rate=0.15, start_pulses=(6
     steps = dt * (1.0 + 0.2 * rng.uniform(-1.0, 1.0, n))
     t = np.concatenate([[0.0], np.cumsum(steps[1:])]) + 1000.0
     rate = np.where((np.arange(n) > n // 4) & (np.arange(n) < n // 2), turn_rate, 0.0)
-    dts = np.diff(t, prepend=t[0])
-    dpsi = rate * dts
-    psi = np.cumsum(dpsi)
-    ad = speed * dts
-    dD = dpsi * track
-    left = start_pulses[0] + np.floor(np.cumsum(ad + dD / 2) / dpp)
-    right = start_pulses[1] + np.floor(np.cumsum(ad - dD / 2) / dpp)
-    return {
-        "time_s": t,
-        "left_pulses": (left % MODULUS).astype(np.int64),
-        "right_pulses": (right % MODULUS).astype(np.int64),
-        "compass_x": field * np.cos(psi),
-        "compass_y": field * np.sin(psi),
-        "ref_heading_deg": np.rad2deg(psi),
-    }
+    return rear_axle_columns(t, rate, speed, dpp, track, field, start_pulses, MODULUS)
 
 
 def with_optional(cols):

@@ -17,6 +17,8 @@ from identification.cli import main as cli_main
 from identification.drive_log import drive_from_columns, read_table, write_drive
 from identification.estimate import OUTPUT_COLUMNS, EstimatorBug, estimate_drive
 
+from drives import rear_axle_columns
+
 REPO = Path(__file__).resolve().parents[1]
 MODULUS = 65536
 N = 160
@@ -28,21 +30,7 @@ def drive_columns(n=N, dt=0.1, speed=12.0, turn_rate=0.2, dpp=0.02, track=1.55, 
     t = 10.0 + dt * np.arange(n) + 0.01 * rng.uniform(-1.0, 1.0, n)
     i = np.arange(n)
     rate = np.where((i > n // 4) & (i <= n // 4 + 40), turn_rate, 0.0)
-    dts = np.diff(t, prepend=t[0])
-    dpsi = rate * dts
-    psi = np.cumsum(dpsi)
-    ad = speed * dts
-    dD = dpsi * track
-    left = 65300 + np.floor(np.cumsum(ad + dD / 2) / dpp)
-    right = 65100 + np.floor(np.cumsum(ad - dD / 2) / dpp)
-    return {
-        "time_s": t,
-        "left_pulses": (left % MODULUS).astype(np.int64),
-        "right_pulses": (right % MODULUS).astype(np.int64),
-        "compass_x": field * np.cos(psi),
-        "compass_y": field * np.sin(psi),
-        "ref_heading_deg": np.rad2deg(psi),
-    }
+    return rear_axle_columns(t, rate, speed, dpp, track, field, (65300, 65100), MODULUS)
 
 
 @pytest.fixture(scope="module")
