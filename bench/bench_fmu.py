@@ -64,29 +64,29 @@ FIRST_STEP = textwrap.dedent('''
     md = read_model_description(path)
     d = extract(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
+
+    def start_and_step(name, inputs):
+        """Instantiate, initialize (with the inputs when given) and take one step."""
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName=name)
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        if engine != "default":
+            fmu.setString([vr["engine"]], [engine])
+        fmu.enterInitializationMode()
+        if inputs:
+            fmu.setInteger([vr["left_pulses"], vr["right_pulses"]], [100, 100])
+            fmu.setReal([vr["compass_x"], vr["compass_y"]], [20.0, 1.0])
+        fmu.exitInitializationMode()
+        if inputs:
+            fmu.setInteger([vr["left_pulses"], vr["right_pulses"]], [150, 149])
+        fmu.doStep(0.0, 0.1)
+        return fmu
+
     t0 = time.perf_counter()
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="first")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    if engine != "default":
-        fmu.setString([vr["engine"]], [engine])
-    fmu.enterInitializationMode()
-    fmu.setInteger([vr["left_pulses"], vr["right_pulses"]], [100, 100])
-    fmu.setReal([vr["compass_x"], vr["compass_y"]], [20.0, 1.0])
-    fmu.exitInitializationMode()
-    fmu.setInteger([vr["left_pulses"], vr["right_pulses"]], [150, 149])
-    fmu.doStep(0.0, 0.1)
+    fmu = start_and_step("first", True)
     t1 = time.perf_counter()
-    fmu2 = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
-                     instanceName="second")
-    fmu2.instantiate()
-    fmu2.setupExperiment(startTime=0.0)
-    if engine != "default":
-        fmu2.setString([vr["engine"]], [engine])
-    fmu2.enterInitializationMode()
-    fmu2.exitInitializationMode()
-    fmu2.doStep(0.0, 0.1)
+    fmu2 = start_and_step("second", False)
     t2 = time.perf_counter()
     print(json.dumps({"first_s": t1 - t0, "second_instance_s": t2 - t1}))
 ''')
