@@ -32,7 +32,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", required=True, help="drive file (.csv, .parquet or .mf4)")
     s.add_argument("--params", help="true vehicle parameters (JSON); default: built-in defaults")
-    s.add_argument("--fixes-sigma", type=float, default=None, metavar="M", help="add 1 Hz position fixes with this sigma (m)")
+    s.add_argument("--fixes-sigma", type=float, default=None, metavar="M",
+                   help="add 1 Hz position fixes with this sigma per axis (m)")
+    s.add_argument("--fixes-model", choices=("gnss", "white"), default="gnss",
+                   help="fix errors: gnss = half white, half correlated over 30 s (default); white = independent")
     s.add_argument("--dpp-mismatch", type=float, default=0.0, help="right wheel's true dpp relative excess, e.g. 0.003")
     s.add_argument("--no-anomalies", action="store_true", help="no localized magnetic anomalies")
 

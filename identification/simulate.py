@@ -65,6 +65,8 @@ PITCH_PER_ACCEL_DEG = 0.25  # body pitch (nose up) per m/s² of longitudinal acc
 ROLL_PER_ACCEL_DEG = 0.5    # body roll (outwards) per m/s² of lateral acceleration
 LANE_WANDER_DEG = 0.25      # heading wander around the street heading on roads (lane keeping)
 MAP_ERROR_DEG = 0.3         # digitization error of a street's map heading
+FIX_MODELS = ("gnss", "white")
+FIX_CORRELATION_S = 30.0     # correlation time of the correlated half of "gnss" fix errors
 REF_NOISE_DEG = 0.1         # GNSS/INS reference heading: white + correlated parts, each this sigma
 COMPASS_NOISE_UT = 0.35
 START_CLEAR_M = 150.0       # no anomaly lobe centred this close to the start of the route
@@ -404,7 +406,7 @@ def sample_times(duration_s, rng, period=SAMPLE_PERIOD_S, jitter=0.004, drop_pro
 
 
 def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sigma: float | None = None,
-             dpp_mismatch: float = 0.0, anomalies: bool = True, faults: bool = False):
+             dpp_mismatch: float = 0.0, anomalies: bool = True, faults: bool = False, fixes_model: str = "gnss"):
     """Simulate one drive.  Returns (columns in the drive schema, truth dict).
 
     columns: time_s, left_pulses, right_pulses (int64), compass_x, compass_y (µT), ref_heading_deg,
@@ -412,8 +414,11 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
     fix_east_m, fix_north_m, fix_valid (1 Hz).  truth: time_s, heading_rad, heading_deg, x_m, y_m,
     speed_mps, curvature (ΔD/AD of the wheel model), kappa_per_m, pitch_deg, roll_deg,
     anomaly_ut (|anomaly field|), params (dict of true parameters), scenario, seed, duration_s,
-    dpp_mismatch, true_dpp_left/right, n_anomalies.
-    ``faults=True`` adds a few NaN compass samples (sensor dropouts).
+    dpp_mismatch, true_dpp_left/right, n_anomalies, fixes_sigma, fixes_model.
+    ``faults=True`` adds a few NaN compass samples (sensor dropouts).  ``fixes_model`` is the
+    error of the fixes, each axis sigma = ``fixes_sigma``: "gnss" (half of the variance white, half
+    correlated over 30 s, as multipath and atmosphere make a receiver's) or "white" (independent
+    Gaussian errors, the assumption of US 4,680,715 claim 1).
     """
     if scenario not in SCENARIOS:
         raise OdoCompassError(f"unknown scenario {scenario!r}; expected one of {', '.join(SCENARIOS)}")
@@ -423,6 +428,8 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
         raise OdoCompassError(f"--dpp-mismatch must be a small relative error in (-0.5, 0.5), got {dpp_mismatch}")
     if fixes_sigma is not None and not fixes_sigma >= 0.0:
         raise OdoCompassError(f"--fixes-sigma must be >= 0 m, got {fixes_sigma}")
+    if fixes_model not in FIX_MODELS:
+        raise OdoCompassError(f"unknown fixes model {fixes_model!r}; expected one of {', '.join(FIX_MODELS)}")
     p = true_params(params)
     seq = np.random.SeedSequence([int(seed), SCENARIOS.index(scenario)])
     rng_route, rng_wheel, rng_compass, rng_anom, rng_ref = (np.random.default_rng(s) for s in seq.spawn(5))
@@ -507,7 +514,7 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
         "compass_unreliable_area": unreliable.astype(np.int64),
     }
     if fixes_sigma is not None:
-        columns.update(_fixes(t, x, y, fixes_sigma, road, rng_ref))
+        columns.update(_fixes(t, x, y, fixes_sigma, road, rng_ref, correlated=fixes_model == "gnss"))
 
     truth = {
         "time_s": columns["time_s"],
@@ -532,6 +539,7 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
         "field_horizontal_ut": horizontal,
         "n_anomalies": n_anomalies,
         "fixes_sigma": fixes_sigma,
+        "fixes_model": fixes_model if fixes_sigma is not None else None,
         "anomalies": bool(anomalies),
         "faults": bool(faults),
     }
@@ -586,15 +594,20 @@ def _map(route, node, rng):
     return np.where(valid, heading, 0.0), valid
 
 
-def _fixes(t, x, y, sigma, road, rng):
-    """1 Hz GNSS position fixes: correlated (multipath, tau 30 s) plus white error, each sigma/sqrt(2)."""
+def _fixes(t, x, y, sigma, road, rng, correlated=True):
+    """1 Hz GNSS position fixes, per axis sigma: correlated (multipath, tau FIX_CORRELATION_S) plus
+    white error, each sigma/sqrt(2); or (``correlated=False``) white error only."""
     sec = np.floor(t)
     first = np.concatenate([[True], sec[1:] != sec[:-1]])
     idx = np.flatnonzero(first)
-    part = sigma / math.sqrt(2.0)
     dt_fix = np.diff(t[idx], prepend=t[idx[0]] - 1.0)
-    err = np.stack([part * rng.standard_normal(idx.size)
-                    + sensors.ou_filter(dt_fix, 30.0, part, rng.standard_normal(idx.size))[0] for _ in range(2)])
+    if correlated:
+        part = sigma / math.sqrt(2.0)
+        err = np.stack([part * rng.standard_normal(idx.size)
+                        + sensors.ou_filter(dt_fix, FIX_CORRELATION_S, part, rng.standard_normal(idx.size))[0]
+                        for _ in range(2)])
+    else:
+        err = sigma * rng.standard_normal((2, idx.size))
     urban = road[idx] == ROAD_NAMES.index("urban")
     ok = rng.random(idx.size) >= np.where(urban, 0.05, 0.01)  # outages (urban canyons, bridges)
     east = np.zeros(t.size)
@@ -629,7 +642,7 @@ def write_truth(drive_path, truth) -> tuple[Path, Path]:
     np.savetxt(csv_path, data, delimiter=",", fmt=fmt, header=header, comments="")
     meta = {k: truth[k] for k in ("params", "scenario", "seed", "duration_s", "dpp_mismatch", "true_dpp_left",
                                   "true_dpp_right", "field_horizontal_ut", "n_anomalies", "fixes_sigma",
-                                  "anomalies", "faults")}
+                                  "fixes_model", "anomalies", "faults")}
     meta["drive"] = Path(drive_path).name
     meta["truth_csv"] = csv_path.name
     meta["note"] = ("heading_deg true (clockwise from true north); curvature = dD/AD of the wheel model "
@@ -651,7 +664,7 @@ def main(args) -> int:
     t0 = time.perf_counter()
     columns, truth = simulate(args.scenario, float(args.duration), int(args.seed), params=params,
                               fixes_sigma=args.fixes_sigma, dpp_mismatch=float(args.dpp_mismatch),
-                              anomalies=not args.no_anomalies)
+                              anomalies=not args.no_anomalies, fixes_model=args.fixes_model)
     out = write_drive(args.out, columns)
     csv_path, json_path = write_truth(out, truth)
     n = columns["time_s"].size
