@@ -13,6 +13,7 @@ import pytest
 
 import jaxmodel
 from identification import sensors
+from identification.errors import OdoCompassError
 from identification.drive_log import drive_from_columns, read_drive, read_table
 from identification.simulate import SCENARIOS, max_steering_curvature, simulate, true_params, truth_paths
 
@@ -219,6 +220,39 @@ def test_params_and_fixes():
         simulate("urban", 10.0, seed=0, params={"bogus": 1.0})
 
 
+def _fix_errors(fixes_model):
+    """Per-axis errors of the valid fixes of one 30-minute drive (east and north stacked), and their
+    lag-1 (1 s) and lag-10 correlations over the fixes taken one second apart."""
+    cols, truth = simulate("highway", 1800.0, seed=3, fixes_sigma=4.0, fixes_model=fixes_model)
+    assert truth["fixes_model"] == fixes_model and truth["fixes_sigma"] == 4.0
+    fv = np.flatnonzero(cols["fix_valid"] > 0)
+    errors = [cols[k][fv] - truth[t][fv] for k, t in (("fix_east_m", "x_m"), ("fix_north_m", "y_m"))]
+    t = truth["time_s"][fv]
+
+    def corr(lag):
+        pairs = [(e[:-lag], e[lag:]) for e in errors]
+        ok = np.abs(t[lag:] - t[:-lag] - lag) < 0.2  # no outage between the two fixes
+        a = np.concatenate([p[0][ok] for p in pairs])
+        b = np.concatenate([p[1][ok] for p in pairs])
+        return float(np.corrcoef(a, b)[0, 1])
+
+    return np.concatenate(errors), corr(1), corr(10)
+
+
+def test_fix_error_models():
+    """gnss: sigma per axis, half of the variance correlated over 30 s (correlation at lag 10 s
+    0.5 exp(-1/3) = 0.36); white: sigma per axis, uncorrelated.  1800 fixes per axis, so the
+    sample correlation of white errors is within +-0.06 (3 sigma)."""
+    e, c1, c10 = _fix_errors("gnss")
+    assert np.std(e) == pytest.approx(4.0, rel=0.15)
+    assert 0.35 < c1 < 0.65 and 0.15 < c10 < 0.55
+    e, c1, c10 = _fix_errors("white")
+    assert np.std(e) == pytest.approx(4.0, rel=0.05)
+    assert abs(c1) < 0.06 and abs(c10) < 0.06
+    with pytest.raises(OdoCompassError, match="unknown fixes model 'colored'"):
+        simulate("urban", 10.0, seed=0, fixes_sigma=4.0, fixes_model="colored")
+
+
 def test_cli_writes_drive_and_truth(tmp_path):
     from identification.cli import main
 
@@ -226,7 +260,7 @@ def test_cli_writes_drive_and_truth(tmp_path):
     pfile = tmp_path / "true.json"
     jaxmodel.save_params(pfile, jaxmodel.make_params({"a": 2e-4}))
     rc = main(["simulate", "--scenario", "urban", "--duration", "120", "--seed", "4", "--out", str(out),
-               "--params", str(pfile), "--fixes-sigma", "2", "--dpp-mismatch", "0.003"])
+               "--params", str(pfile), "--fixes-sigma", "2", "--fixes-model", "white", "--dpp-mismatch", "0.003"])
     assert rc == 0
     csv_path, json_path = truth_paths(out)
     assert csv_path.name == "drive.truth.csv" and json_path.name == "drive.truth.json"
@@ -239,6 +273,7 @@ def test_cli_writes_drive_and_truth(tmp_path):
     meta = json.loads(json_path.read_text())
     assert meta["scenario"] == "urban" and meta["seed"] == 4 and meta["duration_s"] == 120.0
     assert meta["dpp_mismatch"] == 0.003 and meta["params"]["a"] == 2e-4
+    assert meta["fixes_sigma"] == 2.0 and meta["fixes_model"] == "white"
     ref = np.degrees(drive.ref_heading)
     assert np.sqrt(np.mean(wrap_deg(ref - table["heading_deg"]) ** 2)) < 0.3
     assert main(["simulate", "--scenario", "urban", "--duration", "0", "--out", str(out)]) == 2
