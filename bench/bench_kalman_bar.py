@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import jaxmodel as jm  # noqa: E402
 from identification.drive_log import drive_from_columns  # noqa: E402
-from identification.simulate import FIX_CORRELATION_S, simulate  # noqa: E402
+from identification.simulate import FIX_CORRELATION_S, FIX_MODELS, simulate  # noqa: E402
 
 SIGMA_M = 4.0
 DURATION_S = 900.0
@@ -61,7 +61,9 @@ def _rmse(out, truth):
 
 def fix_average_floor(columns, truth, correlated):
     """Position RMSE (m) after the first minute of a causal Kalman estimate of the start offset
-    from the fixes alone, dead reckoning perfect: states [offset, correlated fix error] per axis."""
+    from the fixes alone, dead reckoning perfect: states [offset, correlated fix error] per axis,
+    with the simulator's fix error model, whose correlated part starts at 0 one second before the
+    first fix (``simulate._fixes``)."""
     valid = np.asarray(columns["fix_valid"]) > 0
     t = truth["time_s"]
     white = SIGMA_M / math.sqrt(2.0) if correlated else SIGMA_M
@@ -70,7 +72,8 @@ def fix_average_floor(columns, truth, correlated):
     sq = np.zeros(t.size)
     for key, true in (("fix_east_m", truth["x_m"]), ("fix_north_m", truth["y_m"])):
         y = np.asarray(columns[key]) - true
-        x, cov, last, est = np.zeros(2), np.diag([100.0**2, colored**2]), t[0], np.zeros(t.size)
+        first = t[np.argmax(valid)] if valid.any() else t[0]
+        x, cov, last, est = np.zeros(2), np.diag([100.0**2, 0.0]), first - 1.0, np.zeros(t.size)
         for k in range(t.size):
             if valid[k]:
                 f = math.exp(-(t[k] - last) / FIX_CORRELATION_S)
@@ -90,9 +93,9 @@ def fix_average_floor(columns, truth, correlated):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="1-32", help="seed range, e.g. 1-32 (default) or 7")
-    ap.add_argument("--fixes-model", choices=("gnss", "white", "both"), default="both")
+    ap.add_argument("--fixes-model", choices=FIX_MODELS + ("both",), default="both")
     args = ap.parse_args()
-    models = ("gnss", "white") if args.fixes_model == "both" else (args.fixes_model,)
+    models = FIX_MODELS if args.fixes_model == "both" else (args.fixes_model,)
     run = jax.jit(jm.run, static_argnums=2)
     defaults, receiver = jm.make_params(), jm.make_params(**RECEIVER_PARAMS)
     t0 = time.perf_counter()

@@ -34,7 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--params", help="true vehicle parameters (JSON); default: built-in defaults")
     s.add_argument("--fixes-sigma", type=float, default=None, metavar="M",
                    help="add 1 Hz position fixes with this sigma per axis (m)")
-    s.add_argument("--fixes-model", choices=("gnss", "white"), default="gnss",
+    s.add_argument("--fixes-model", choices=("gnss", "white"), default=None,  # simulate.FIX_MODELS (lazy import)
                    help="fix errors: gnss = half white, half correlated over 30 s (default); white = independent")
     s.add_argument("--dpp-mismatch", type=float, default=0.0, help="right wheel's true dpp relative excess, e.g. 0.003")
     s.add_argument("--no-anomalies", action="store_true", help="no localized magnetic anomalies")

@@ -601,13 +601,18 @@ def _fixes(t, x, y, sigma, road, rng, correlated=True):
     first = np.concatenate([[True], sec[1:] != sec[:-1]])
     idx = np.flatnonzero(first)
     dt_fix = np.diff(t[idx], prepend=t[idx[0]] - 1.0)
+    # Both models take the same draws (white, then correlated, per axis), so the outages drawn
+    # next are the same for both and only the error differs.
+    white, colored = [], []
+    for _ in range(2):
+        white.append(rng.standard_normal(idx.size))
+        colored.append(rng.standard_normal(idx.size))
     if correlated:
         part = sigma / math.sqrt(2.0)
-        err = np.stack([part * rng.standard_normal(idx.size)
-                        + sensors.ou_filter(dt_fix, FIX_CORRELATION_S, part, rng.standard_normal(idx.size))[0]
-                        for _ in range(2)])
+        err = np.stack([part * w + sensors.ou_filter(dt_fix, FIX_CORRELATION_S, part, c)[0]
+                        for w, c in zip(white, colored)])
     else:
-        err = sigma * rng.standard_normal((2, idx.size))
+        err = sigma * np.stack(white)
     urban = road[idx] == ROAD_NAMES.index("urban")
     ok = rng.random(idx.size) >= np.where(urban, 0.05, 0.01)  # outages (urban canyons, bridges)
     east = np.zeros(t.size)
@@ -655,6 +660,8 @@ def write_truth(drive_path, truth) -> tuple[Path, Path]:
 def main(args) -> int:
     from .drive_log import write_drive
 
+    if args.fixes_model is not None and args.fixes_sigma is None:
+        raise OdoCompassError(f"--fixes-model {args.fixes_model} needs --fixes-sigma M (the drive has no fixes without it)")
     params = None
     if args.params:
         from jaxmodel.params import load_params, params_to_dict
@@ -664,7 +671,7 @@ def main(args) -> int:
     t0 = time.perf_counter()
     columns, truth = simulate(args.scenario, float(args.duration), int(args.seed), params=params,
                               fixes_sigma=args.fixes_sigma, dpp_mismatch=float(args.dpp_mismatch),
-                              anomalies=not args.no_anomalies, fixes_model=args.fixes_model)
+                              anomalies=not args.no_anomalies, fixes_model=args.fixes_model or "gnss")
     out = write_drive(args.out, columns)
     csv_path, json_path = write_truth(out, truth)
     n = columns["time_s"].size

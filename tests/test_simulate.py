@@ -241,14 +241,19 @@ def _fix_errors(fixes_model):
 
 def test_fix_error_models():
     """gnss: sigma per axis, half of the variance correlated over 30 s (correlation at lag 10 s
-    0.5 exp(-1/3) = 0.36); white: sigma per axis, uncorrelated.  1800 fixes per axis, so the
-    sample correlation of white errors is within +-0.06 (3 sigma)."""
+    0.5 exp(-1/3) = 0.36); white: sigma per axis, uncorrelated.  About 3600 pairs (two axes pooled),
+    so the sample correlation of white errors is within +-0.05 (3 sigma); the bound is 0.06.  Both
+    models draw the same outages."""
     e, c1, c10 = _fix_errors("gnss")
     assert np.std(e) == pytest.approx(4.0, rel=0.15)
     assert 0.35 < c1 < 0.65 and 0.15 < c10 < 0.55
     e, c1, c10 = _fix_errors("white")
     assert np.std(e) == pytest.approx(4.0, rel=0.05)
     assert abs(c1) < 0.06 and abs(c10) < 0.06
+    gnss, _ = simulate("urban", 300.0, seed=5, fixes_sigma=4.0)
+    white, _ = simulate("urban", 300.0, seed=5, fixes_sigma=4.0, fixes_model="white")
+    np.testing.assert_array_equal(gnss["fix_valid"], white["fix_valid"])
+    assert not np.array_equal(gnss["fix_east_m"], white["fix_east_m"])
     with pytest.raises(OdoCompassError, match="unknown fixes model 'colored'"):
         simulate("urban", 10.0, seed=0, fixes_sigma=4.0, fixes_model="colored")
 
@@ -277,6 +282,9 @@ def test_cli_writes_drive_and_truth(tmp_path):
     ref = np.degrees(drive.ref_heading)
     assert np.sqrt(np.mean(wrap_deg(ref - table["heading_deg"]) ** 2)) < 0.3
     assert main(["simulate", "--scenario", "urban", "--duration", "0", "--out", str(out)]) == 2
+    assert main(["simulate", "--scenario", "urban", "--duration", "60", "--fixes-model", "white",
+                 "--out", str(tmp_path / "nofix.csv")]) == 2
+    assert not (tmp_path / "nofix.csv").exists()
 
 
 # ------------------------------------------------------------------------------------------------
