@@ -11,7 +11,7 @@ Fix errors (``identification.simulate``, ``--fixes-model``):
 * gnss: the simulator's default, half of the variance white and half correlated over 30 s, as a
   real receiver's (multipath, atmosphere);
 * white: independent Gaussian errors, the assumption of US 4,680,715 claim 1.
-On white fixes two parameter sets run: the shipped defaults (fitted on gnss-like fixes,
+On white fixes two parameter sets run: the shipped defaults (fitted on both kinds of fixes,
 bench/tune_kalman.py) and the defaults told the receiver's error (kf_fix_sigma_m = 4,
 kf_fix_gm_sigma_m = 0), as a parameter file for such a receiver would.
 

@@ -8,8 +8,11 @@ in log space with optax Adam, against the simulator's true heading and position.
                                           [--freeze kf_fix_gm_sigma_m,...]
 
 Training drives (15 minutes each): urban seeds 101-104, mixed 105 and highway 106 with 1 Hz
-fixes (sigma 4 m), urban 107 and mixed 108 without fixes, so that the compass-only case stays
-good.  None of them is a bar drive (the bar uses urban seeds 1-5).  Loss, over the samples
+fixes of sigma 4 m whose error is correlated as a receiver's (``fixes_model="gnss"``, the
+simulator's default); urban 109-110, mixed 111 and highway 112 with white fixes of the same sigma
+(``"white"``, the seed's model), so that the defaults suit both kinds of receiver; urban 107 and
+mixed 108 without fixes, so that the compass-only case stays good.  None of them is a bar drive
+(bench/bench_kalman_bar.py uses urban seeds 1-32).  Loss, over the samples
 after the first minute: mean squared wrapped heading error / (0.5 deg)^2 + mean squared
 position error / (2.5 m)^2 (drives with fixes only).  Prints the loss per iteration and the
 fitted values as JSON.
@@ -36,8 +39,11 @@ from identification.simulate import simulate  # noqa: E402
 TUNED = ("kf_gm_tau_s", "kf_gm_sigma_deg", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma", "kf_white_sigma_deg",
          "kf_compass_sigma_deg", "kf_compass_corr_m", "kf_fix_sigma_m", "kf_speed_sigma", "kf_pos_psd",
          "kf_fix_gm_sigma_m", "kf_fix_gm_tau_s", "kf_ramp_psd")
-TRAIN = [("urban", 101, 4.0), ("urban", 102, 4.0), ("urban", 103, 4.0), ("urban", 104, 4.0), ("mixed", 105, 4.0),
-         ("highway", 106, 4.0), ("urban", 107, None), ("mixed", 108, None)]
+TRAIN = [  # (scenario, seed, fixes model or None for no fixes)
+    ("urban", 101, "gnss"), ("urban", 102, "gnss"), ("urban", 103, "gnss"), ("urban", 104, "gnss"),
+    ("mixed", 105, "gnss"), ("urban", 109, "white"), ("urban", 110, "white"), ("mixed", 111, "white"),
+    ("highway", 112, "white"), ("highway", 106, "gnss"), ("urban", 107, None), ("mixed", 108, None)]
+FIXES_SIGMA_M = 4.0
 DURATION_S = 900.0
 SKIP_S = 60.0
 HEADING_SCALE = math.radians(0.5)
@@ -47,15 +53,16 @@ POSITION_SCALE_M = 2.5
 def training_batch():
     """The training drives as one batch (cut to the shortest), with the truth and masks."""
     inputs, truths = [], []
-    for scenario, seed, fixes_sigma in TRAIN:
-        cols, truth = simulate(scenario, DURATION_S, seed, fixes_sigma=fixes_sigma)
+    for scenario, seed, fixes_model in TRAIN:
+        cols, truth = simulate(scenario, DURATION_S, seed, fixes_sigma=FIXES_SIGMA_M if fixes_model else None,
+                               fixes_model=fixes_model or "gnss")
         inputs.append([np.asarray(v, np.float64) for v in drive_from_columns(cols, source=f"{scenario}-{seed}").inputs])
         truths.append(truth)
     n = min(i[0].shape[0] for i in inputs)
     batch = jm.Inputs(*(jnp.asarray(np.stack([i[k][:n] for i in inputs])) for k in range(len(jm.Inputs._fields))))
     ref = {k: jnp.asarray(np.stack([t[k][:n] for t in truths])) for k in ("heading_rad", "x_m", "y_m")}
     mask = jnp.asarray(np.stack([t["time_s"][:n] >= t["time_s"][0] + SKIP_S for t in truths]), jnp.float64)
-    with_fixes = jnp.asarray([[1.0 if fs is not None else 0.0] for _, _, fs in TRAIN])
+    with_fixes = jnp.asarray([[1.0 if model else 0.0] for _, _, model in TRAIN])
     return batch, ref, mask, with_fixes
 
 

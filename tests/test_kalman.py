@@ -271,10 +271,10 @@ def test_bar_15_minute_urban_drives_with_fixes():
     odometer-only dead-reckoned positions), at most 0.4 on average and never above 0.6.
 
     These fixes are the simulator's default ("gnss": half of the variance correlated over 30 s),
-    on which the strict per-drive bar holds on 27 of seeds 1-32 (bench/bench_kalman_bar.py).
+    on which the strict per-drive bar holds on 28 of seeds 1-32 (bench/bench_kalman_bar.py).
     Measured (docs/calibration-kalman.md): seed 1 is the drive of these five where both fail
-    narrowly (heading 0.479 vs 0.445 deg, position 2.32 m vs 4.08 m dead reckoning, 0.57); seeds
-    2-5 pass both (position ratios 0.30, 0.34, 0.17, 0.36).
+    narrowly (heading 0.484 vs 0.445 deg, position 2.39 m vs 4.08 m dead reckoning, 0.58); seeds
+    2-5 pass both (position ratios 0.27, 0.32, 0.17, 0.37).
     """
     p = jm.make_params()
     kal_h, comp_h, pos_ratio = [], [], []
@@ -348,8 +348,8 @@ def test_white_fix_model_when_the_colored_sigma_is_zero():
 def test_colored_fix_errors_are_better_modelled_than_white():
     """Fixes whose error is half white, half correlated over 30 s (the simulator's): the 7-state
     default beats the same filter told the fixes are white with the same total sigma, on average
-    over six urban drives, in position and in heading.  Measured (seeds 31-36): position 2.35 m
-    against 2.62 m (better on five of six), heading 0.466 deg against 0.515 deg."""
+    over six urban drives, in position and in heading.  Measured (seeds 31-36): position 2.25 m
+    against 2.60 m (better on five of six), heading 0.456 deg against 0.500 deg."""
     colored = jm.make_params()
     total = math.hypot(colored.kf_fix_sigma_m, colored.kf_fix_gm_sigma_m)
     white = jm.make_params(kf_fix_gm_sigma_m=0.0, kf_fix_sigma_m=total)
