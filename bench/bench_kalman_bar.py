@@ -36,6 +36,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import jaxmodel as jm  # noqa: E402
+from identification.demo import heading_rmse_deg  # noqa: E402
 from identification.drive_log import drive_from_columns  # noqa: E402
 from identification.simulate import FIX_CORRELATION_S, FIX_MODELS, simulate  # noqa: E402
 
@@ -53,10 +54,9 @@ def _seeds(text):
 def _rmse(out, truth):
     """(heading RMSE deg, position RMSE m) after the first minute."""
     t = truth["time_s"]
-    m = t >= t[0] + SKIP_S
-    e = np.angle(np.exp(1j * (np.asarray(out.heading) - truth["heading_rad"])))
+    m = t - t[0] >= SKIP_S  # the samples heading_rmse_deg keeps
     d2 = (np.asarray(out.x) - truth["x_m"]) ** 2 + (np.asarray(out.y) - truth["y_m"]) ** 2
-    return math.degrees(math.sqrt(np.mean(e[m] ** 2))), math.sqrt(np.mean(d2[m]))
+    return heading_rmse_deg(out.heading, truth["heading_rad"], t, SKIP_S), math.sqrt(np.mean(d2[m]))
 
 
 def fix_average_floor(columns, truth, correlated):
