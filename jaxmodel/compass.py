@@ -54,3 +54,49 @@ def compass_error_bound(params, b_m, b_e):
     """E_C = |B_M - B_E| / B_E x 60 deg (FIG. 8C blocks 3-5), floored; rad."""
     d = jnp.abs(safe_div(b_m - b_e, b_e, fallback=1.0))
     return jnp.maximum(d * deg(params.compass_error_scale_deg), deg(params.compass_error_floor_deg))
+
+
+FIELD_BINS = 12
+"""Headings at which the expected field magnitude B_E is learned (every 30°, interpolated)."""
+FIELD_PRIOR_M = 20.0
+"""Metres of the drive-wide mean that a heading bin starts from (so an unseen heading has a B_E)."""
+
+
+def _bin_weights(heading):
+    """Periodic hat weights (FIELD_BINS,) of a heading (rad) over the bins."""
+    u = jnp.mod(heading, 2.0 * jnp.pi) / (2.0 * jnp.pi / FIELD_BINS)
+    nodes = jnp.arange(FIELD_BINS, dtype=jnp.float64)
+    d = jnp.abs(jnp.expand_dims(u, -1) - nodes)
+    d = jnp.minimum(d, FIELD_BINS - d)
+    return jnp.maximum(1.0 - d, 0.0)
+
+
+def expected_field(params, field_sum, field_weight, heading, b_m):
+    """B_E at ``heading`` (US 4,734,863 FIG. 8C, col. 9: "the magnitude ... for each of those known headings").
+
+    The parameter field_magnitude when > 0; else learned on the drive: per heading bin the
+    distance-weighted mean of |B| (``learn_field``), each bin pulled towards the drive-wide mean
+    by FIELD_PRIOR_M metres, interpolated between bins.  Before anything is learned: |B| itself.
+    """
+    total_w = jnp.sum(field_weight)
+    overall = safe_div(jnp.sum(field_sum), total_w, eps=1e-9, fallback=1.0)
+    overall = jnp.where(total_w > 1e-9, overall, b_m)
+    per_bin = (field_sum + FIELD_PRIOR_M * overall) / (field_weight + FIELD_PRIOR_M)
+    learned = jnp.sum(_bin_weights(heading) * per_bin)
+    return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned)
+
+
+def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):
+    """Distance-weighted learning of |B| per heading bin (claim 13), with forgetting over field_memory_m.
+
+    Only samples while moving (weight d_t), with a valid compass that the heading filter did not
+    judge disturbed (``clean``) and within field_learn_gate (relative) of the current B_E once
+    the bin holds FIELD_PRIOR_M metres, so standstill, anomalies and a parked truck do not teach it.
+    """
+    w = _bin_weights(heading)
+    near = jnp.abs(safe_div(b_m - b_e, b_e, fallback=1.0)) < params.field_learn_gate
+    young = field_weight < FIELD_PRIOR_M
+    use = clean & (d_t > 0.0) & (near | young)
+    inc = jnp.where(use, d_t * w, 0.0)
+    forget = jnp.exp(-inc / params.field_memory_m)
+    return forget * field_sum + inc * b_m, forget * field_weight + inc

@@ -23,9 +23,12 @@ from . import calibration as _cal
 from . import compass as _compass
 from . import heading_filter as _hf
 from . import kalman as _kalman
+from . import offset_filter as _offset
+from . import plausibility as _guard
 from . import refine as _refine
 from . import track as _track
 from .angles import safe_div, wrap
+from .params import deg
 
 MODES = ("complementary", "odometer", "compass", "kalman")
 
@@ -103,8 +106,8 @@ class State(NamedTuple):
     delta_history: jnp.ndarray    # last three DELTA at F updates, newest first, rad
     distance_since_F: jnp.ndarray  # m since the last update of F
     distance_filtered: jnp.ndarray  # m driven with the filter running (start-up floor of the gain)
-    field_sum: jnp.ndarray        # sum of |B| over valid samples (learned B_E)
-    field_count: jnp.ndarray
+    field_sum: jnp.ndarray        # (FIELD_BINS,) distance-weighted sums of |B| per heading bin (learned B_E)
+    field_count: jnp.ndarray      # (FIELD_BINS,) their weights, m
     a: jnp.ndarray                # current velocity coefficient, s^2/m^2
     x: jnp.ndarray                # east, m
     y: jnp.ndarray                # north, m
@@ -112,6 +115,8 @@ class State(NamedTuple):
     refine: _refine.RefineState
     calibration: _cal.CalibrationState
     kalman: _kalman.KalmanState
+    guard: _guard.GuardState
+    offset: _offset.OffsetState
 
 
 class Outputs(NamedTuple):
@@ -147,10 +152,11 @@ def init_state(params) -> State:
     return State(
         started=z, initialized=z, last_time=z, last_left=z, last_right=z, speed=z, window_dD=z, window_AD=z,
         wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
-        delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z, field_sum=z,
-        field_count=z, a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
+        delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z,
+        field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
-        kalman=_kalman.init_kalman_state(params),
+        kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
+        offset=_offset.init_offset_state(params),
     )
 
 
@@ -173,15 +179,14 @@ def _odometer(params, state, sample, track_table):
     n_left = _decode_counter(left, state.last_left, params.counter_modulus)
     n_right = _decode_counter(right, state.last_right, params.counter_modulus)
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
-    d_left, d_right = n_left * dpp_left, n_right * dpp_right
-    # Plausibility: a jump beyond max_speed (over the sample interval, 0.1 s if the time step is
-    # unusable) is a counter fault; the sample's distance is dropped and the counters resync.
-    limit = params.max_speed * jnp.where(time_ok, dt, 0.1) + 2.0 * jnp.maximum(dpp_left, dpp_right)
-    plausible = counts_finite & started & (jnp.abs(d_left) <= limit) & (jnp.abs(d_right) <= limit)
-    d_left = jnp.where(plausible, d_left, 0.0)
-    d_right = jnp.where(plausible, d_right, 0.0)
-    n_left = jnp.where(plausible, n_left, 0.0)
-    n_right = jnp.where(plausible, n_right, 0.0)
+    # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
+    # vehicle's motion, substituted from the other wheel and the recent turn rate.
+    d_left, d_right, raw_ok, kept, guard_state = _guard.guard(
+        params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
+        jnp.maximum(dpp_left, dpp_right))
+    n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
+    n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
+    plausible = raw_ok
 
     dD = d_left - d_right
     AD = 0.5 * (d_left + d_right)
@@ -204,7 +209,8 @@ def _odometer(params, state, sample, track_table):
     alpha = _track.wheel_heading_change(dD, track, state.a, speed)
     return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
                 d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
-                track=track, alpha=alpha, plausible=plausible)
+                track=track, alpha=alpha, plausible=plausible, kept=kept,
+                guard=guard_state)
 
 
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
@@ -222,13 +228,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     odo = _odometer(params, state, sample, track_table)
     d_t, alpha = odo["d_t"], odo["alpha"]
 
-    # FIG. 8A / 8C: compass heading, field magnitude, error bound.
+    # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
     h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
-    field_sum = state.field_sum + jnp.where(compass_ok, b_m, 0.0)
-    field_count = state.field_count + jnp.where(compass_ok, 1.0, 0.0)
-    # B_E: the parameter when given (> 0), else the running mean of |B| over the drive so far.
-    learned = safe_div(field_sum, field_count, fallback=1.0)
-    b_e = jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned)
+    b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
@@ -240,29 +242,40 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     # FIG. 8D: wheel error bound.
     e_w = _hf.wheel_error_bound(params, state.e_w, alpha, d_t)
 
-    # FIG. 8F (map selector) and DELTA (FIG. 8 block 5).
+    # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
+    # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
+    compass_delta = wrap(h_c - wheel_heading)
+    compass_on = compass_ok & (initialized > 0.5)
+    distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
+    update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
+    history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
+                        state.delta_history)
+    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
+    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
+    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
+
+    # FIG. 8F: map-heading selector, then DELTA.
     absolute, delta, map_used = _hf.select_absolute_heading(
         params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
         sample.compass_unreliable_area)
     absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
 
-    # FIG. 8 block 6 / 8E / 8E-A: every F_update_distance_m, SDD and F.
-    distance_since_F = state.distance_since_F + jnp.where(absolute_ok, d_t, 0.0)
-    update_F = absolute_ok & (distance_since_F >= params.F_update_distance_m)
-    history = jnp.where(update_F, jnp.concatenate([delta[None], state.delta_history[:2]]), state.delta_history)
-    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
-
-    # FIG. 8G / 8H: F-DELTA and EH.
+    # FIG. 8G / 8H: F-DELTA by the robust offset filter (jaxmodel/offset_filter.py), EH = H_W + F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    gain = _hf.filter_gain(params, d_t, factor, distance_filtered)
-    f_delta = jnp.where(initializing, 0.0,
-                        jnp.where(absolute_ok, _hf.update_f_delta(state.f_delta, delta, gain), state.f_delta))
+    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
+    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
+                      jnp.sqrt(deg(params.kf_compass_sigma_deg) ** 2 + (params.kf_compass_ec_weight * e_c) ** 2))
+    offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, jnp.where(map_used, 1.0, factor),
+                                          absolute_ok & ~initializing)
+    offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
+    f_delta = offset.delta
     complementary = wrap(wheel_heading + f_delta)
 
+    field_sum, field_count = _compass.learn_field(
+        params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
+        compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
-    compass_delta = wrap(h_c - wheel_heading)
     refine_state, a = _refine.refine_step(
         params, state.refine, state.a, alpha=alpha, delta=compass_delta, d_t=d_t, speed=odo["speed"],
         curvature=odo["curvature"], e_c=e_c, compass_ok=compass_ok & (initialized > 0.5), enabled=config.refine_a)
@@ -271,12 +284,17 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     cal_state = _cal.calibration_step(
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=d_t,
         compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration)
+    # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
+    if config.calibration:
+        rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
+        rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
+        offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(
         params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
-        fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["plausible"],
+        fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=absolute, map_used=map_used, enabled=config.mode == "kalman")
 
     if config.mode == "complementary":
@@ -297,7 +315,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _hf.heading_bound(sdd, e_w, e_c)
+    bound = _offset.bound(offset, initialized)
     new_state = State(
         started=jnp.ones((), jnp.float64),
         initialized=initialized,
@@ -308,11 +326,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         f_delta=f_delta, heading=heading, e_w=e_w, e_c=e_c, sdd=sdd, factor=factor, delta_history=history,
         distance_since_F=distance_since_F, distance_filtered=distance_filtered, field_sum=field_sum,
         field_count=field_count, a=a, x=x, y=y, distance=state.distance + d_t, refine=refine_state,
-        calibration=cal_state, kalman=kalman_state,
+        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
-        heading_reliability=_hf.reliability(params, bound), heading_bound=bound,
+        heading_reliability=jnp.where(initialized > 0.5, _hf.reliability(params, bound), 0.0), heading_bound=bound,
         compass_valid=jnp.where(compass_ok, 1.0, 0.0), odometer_valid=jnp.where(odo["plausible"], 1.0, 0.0),
         curvature=odo["curvature"], effective_track=odo["track"], factor=factor, f_delta=f_delta, e_c=e_c, e_w=e_w,
         map_used=jnp.where(map_used, 1.0, 0.0),

@@ -54,8 +54,9 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("Y0", 0.0, "compass", "compass y offset (FIG. 8A block 2)"),
     ParamSpec("rotation_deg", 0.0, "deg", "compass mounting rotation R (FIG. 8A block 5)"),
     ParamSpec("field_magnitude", 0.0, "compass",
-              "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive as a "
-              "distance-weighted running median-like average of |B| (see jaxmodel.compass)"),
+              "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive per heading "
+              "(claim 13): a distance-weighted mean of |B| in 12 heading bins, excluding standstill, disturbed "
+              "samples and samples beyond field_learn_gate, forgetting over field_memory_m (jaxmodel.compass)"),
     ParamSpec("deviation_deg", (0.0,) * DEVIATION_TABLE_SIZE, "deg",
               "compass deviation table (FIG. 8A block 4), 36 entries at raw headings 0, 10, ..., 350 deg, "
               "interpolated periodically"),
@@ -84,6 +85,17 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("map_threshold_deg", 10.0, "deg", "map heading replaces the compass when it agrees with the estimate within this (FIG. 8F)"),
     ParamSpec("reliability_scale_deg", 2.0, "deg", "heading_reliability = 1 / (1 + bound / this)"),
     ParamSpec("max_speed", 90.0, "m/s", "plausibility: larger wheel speeds are counter faults and are skipped"),
+    ParamSpec("glitch_pulses", 4.0, "1", "plausibility (jaxmodel/plausibility.py): dD may depart from its recent rate by this many pulses"),
+    ParamSpec("glitch_dD_rate", 0.5, "m/s", "plausibility: plus this change of the dD rate over the sample interval (yaw acceleration)"),
+    # --- robust F-DELTA filter (jaxmodel/offset_filter.py; FIG. 8G's filter, fitted in docs/tuning.md) ---
+    ParamSpec("filter_offset_psd", 7.6e-8, "rad2/m", "random walk of the wheel heading offset per metre driven"),
+    ParamSpec("filter_rate_psd", 1.0e-13, "rad2/m3", "random walk of the offset's rate per metre (tyre wear, load)"),
+    ParamSpec("filter_rate_sigma0", 0.01, "rad/m", "initial sigma of the offset's rate (left/right tyre mismatch / track)"),
+    ParamSpec("filter_check_m", 15.0, "m", "distance over which DELTA's agreement with the wheels is averaged (disturbance detection)"),
+    ParamSpec("filter_check_sigma_deg", 1.0, "deg", "expected spread of that average on a clean compass"),
+    ParamSpec("filter_gate_sigma", 3.0, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),
+    ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
+    ParamSpec("field_memory_m", 5000.0, "m", "distance over which the learned B_E per heading forgets (hard-iron changes)"),
     # --- left/right dpp calibration, EP 0619873 (jaxmodel/calibration.py) -----------------
     ParamSpec("cal_check_distance_m", 20.0, "m", "EP 0619873 claims 2-3: the count ratio is checked over windows of this distance"),
     ParamSpec("cal_ratio_bound", 0.01, "1", "EP 0619873 claims 2-3: bound on a window's |dD/AD| (current dpp) for the stretch to go on"),
@@ -95,7 +107,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("cal_filter_stretches", 100.0, "1", "EP 0619873 claim 13: memory of the filtered correction ratio, in stretches"),
     ParamSpec("cal_stretch_sigma", 1.5e-4, "1", "prior spread of one stretch's correction ratio (pooled with the observed spread)"),
     ParamSpec("cal_significance", 5.0, "1", "significance z: applied k = k0 + d / (1 + (z^2 var_mean / d^2)^2), d = filtered ratio - k0"),
-    ParamSpec("cal_max_correction", 0.02, "1", "EP 0619873: the ratio stays within this (relative) of dpp_right/dpp_left"),
+    ParamSpec("cal_max_correction", 0.03, "1", "EP 0619873: the ratio stays within this (relative) of dpp_right/dpp_left"),
     # --- Kalman mode, US 4,680,715 (jaxmodel/kalman.py) -----------------------------------
     ParamSpec("kf_gm_tau_s", 660.0, "s", "US 4,680,715: time constant of the Gauss-Markov course error dth1 (the compass's colored error)"),
     ParamSpec("kf_gm_sigma_deg", 1.46, "deg", "US 4,680,715: stationary sigma of dth1 (anomalies, dip errors on hills)"),
@@ -172,14 +184,16 @@ POSITIVE_KEYS = (
     "cal_check_distance_m", "cal_ratio_bound", "cal_stretch_distance_m", "cal_compass_tolerance_deg",
     "cal_sanity_bound", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
-    "kf_max_yaw_rate_deg_s", "kf_speed_factor")
+    "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
+    "field_learn_gate", "field_memory_m")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
     "wheel_error_K", "heading_error_K", "map_threshold_deg", "cal_prior_weight", "cal_significance",
     "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
-    "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd")
+    "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
+    "filter_rate_psd", "filter_rate_sigma0")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""
 FRACTION_KEYS = ("refine_compass_bad_fraction", "cal_no_compass_weight")
 """Fractions and weights in [0, 1]."""

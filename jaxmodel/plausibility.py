@@ -1,0 +1,94 @@
+"""Plausibility of the wheel pulse counts in every mode (US 4,680,715's speed and course checks).
+
+US 4,680,715 rejects a speed change beyond what the vehicle can do and a course change beyond
+its yaw rate.  Here the same two checks guard the odometer itself, before any mode sees it, and
+a rejected sample keeps the vehicle's real motion instead of dropping it:
+
+* speed: each wheel's increment must be within ``max_speed`` over the sample interval (a
+  counter fault, a wrong ``counter_modulus`` wrap, a +-3000-count spike);
+* course: the differential increment dD must agree with its recent rate (time-smoothed over
+  ``GUARD_TAU_S``) within ``glitch_pulses`` pulses plus ``glitch_dD_rate`` x dt: dD is the turn,
+  and a car's yaw rate cannot jump within one sample, while a burst of spurious pulses on one
+  wheel moves dD by the whole burst.
+
+Which wheel is at fault: the one whose increment departs more from its own recent rate.  Its
+increment is replaced by the other wheel's plus (or minus) the predicted dD, so AD and the
+turn of that sample stay what the vehicle did; when both wheels fail (or after
+``GUARD_MAX_SUBSTITUTED`` substitutions in a row) both are replaced by their predictions for
+that sample.  The counter references always follow the counters (resync), so a burst that
+permanently offsets one counter costs nothing after its sample, and a spike costs nothing
+after the sample that returns.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from .packed import packed_state
+
+GUARD_TAU_S = 0.3
+"""Time constant (s) of the wheel and dD rates the next increments are predicted from."""
+GUARD_MAX_SUBSTITUTED = 20.0
+"""After this many substituted samples in a row the counts are believed again (a real jump)."""
+
+
+class GuardFields(NamedTuple):
+    rate_left: jnp.ndarray   # m/s, time-smoothed left wheel speed (signed)
+    rate_right: jnp.ndarray  # m/s
+    rate_dD: jnp.ndarray     # m/s, time-smoothed dD rate
+    substituted: jnp.ndarray  # substituted samples in a row
+
+
+GuardState = packed_state(GuardFields, "GuardState", "State of the odometer plausibility guard (one float64 vector).")
+GuardState.__module__ = __name__
+
+
+def init_guard_state():
+    z = jnp.zeros((), jnp.float64)
+    return GuardState.pack(GuardFields(z, z, z, z))
+
+
+def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
+    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, kept, new GuardState).
+
+    raw_ok: the counts passed both checks as they were; kept: the sample's motion is used (raw or
+    substituted).  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
+    """
+    g = gs.fields()
+    step_dt = jnp.where(time_ok, dt, 0.1)
+    pred_left, pred_right = g.rate_left * step_dt, g.rate_right * step_dt
+    pred_dD = g.rate_dD * step_dt
+    speed_limit = params.max_speed * step_dt + 2.0 * dpp
+    left_fast = jnp.abs(d_left) > speed_limit
+    right_fast = jnp.abs(d_right) > speed_limit
+    dD = d_left - d_right
+    tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
+    turn_bad = jnp.abs(dD - pred_dD) > tol
+    trusting = g.substituted < GUARD_MAX_SUBSTITUTED
+    raw_ok = counts_ok & ~left_fast & ~right_fast & ~turn_bad
+    blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
+    both = left_fast & right_fast
+    fix = counts_ok & ~raw_ok & trusting
+    new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
+    new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
+    d_left = jnp.where(fix, new_left, d_left)
+    d_right = jnp.where(fix, new_right, d_right)
+    # A run of failures beyond GUARD_MAX_SUBSTITUTED: believe the wheels again unless a wheel is
+    # beyond max_speed (that sample is dropped), so a true change of turn is not fought forever.
+    believe = counts_ok & ~raw_ok & ~trusting
+    drop = believe & (left_fast | right_fast)
+    d_left = jnp.where(drop | ~counts_ok, 0.0, d_left)
+    d_right = jnp.where(drop | ~counts_ok, 0.0, d_right)
+    kept = counts_ok & ~drop
+
+    w = jnp.where(time_ok & kept, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
+    inv_dt = jnp.where(time_ok, 1.0 / step_dt, 0.0)
+    substituted = jnp.where(fix, g.substituted + 1.0, 0.0)
+    new = GuardState.pack(GuardFields(
+        rate_left=g.rate_left + w * (d_left * inv_dt - g.rate_left),
+        rate_right=g.rate_right + w * (d_right * inv_dt - g.rate_right),
+        rate_dD=g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
+        substituted=substituted))
+    return d_left, d_right, raw_ok, kept, new
