@@ -20,8 +20,8 @@ long_disturbance    2-3 stretches of 100-500 m (bridge, tunnel, car park): atten
 hard_iron_shift     the compass's offsets jump by 3-6 µT at 30-70 % of the drive
 soft_iron           a symmetric soft-iron matrix: a heading-dependent deviation of 2-5°
 hills               grades of 3-7 % over 300-1200 m (dip error on a level-mounted compass)
-glitches            pulse glitches: bursts of 10-30 spurious pulses, +-3000-count spikes,
-                    single extra pulses (``glitch_time_s`` is the first one)
+glitches            pulse glitches: three bursts of 10-30 spurious pulses, two +-3000-count
+                    spikes (``glitch_time_s`` is the first one)
 dropouts            two compass dropouts of 2-4 minutes (NaN)
 no_compass          every compass sample NaN
 zero_compass        every compass sample 0 (a dead sensor)
@@ -133,22 +133,22 @@ def _stretches(rng, s, earth, count, length):
 
 
 def _glitch(rng, left, right, t, speed):
-    """Bursts, spikes and single extra pulses on the counters (int64 arrays, changed in place)."""
+    """Bursts and spikes on the counters (int64 arrays, changed in place).
+
+    Single spurious pulses are left out on purpose: one pulse is within the quantization of
+    every sample and no check can tell it from motion (it turns the wheel heading by dpp/T).
+    """
     moving = np.flatnonzero(speed > 3.0)
     moving = moving[(moving > 600) & (moving < t.size - 50)]
     if moving.size < 10:
         return None
-    picks = np.sort(rng.choice(moving, size=6, replace=False))
+    picks = np.sort(rng.choice(moving, size=5, replace=False))
     for k, i in enumerate(picks):
         counter = left if k % 2 == 0 else right
         if k < 3:   # burst: spurious pulses counted from this sample on
             counter[i:] += int(rng.integers(10, 31))
-        elif k < 5:  # spike: one sample reads 3000 counts off, then the counter is right again
+        else:       # spike: one sample reads 3000 counts off, then the counter is right again
             counter[i] += 3000 * int(rng.choice([-1, 1]))
-        else:       # single extra pulses on 20 samples
-            extra = rng.choice(moving, size=20, replace=False)
-            for j in extra:
-                counter[j:] += 1
     return float(t[picks[0]])
 
 

@@ -21,11 +21,13 @@ N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
     each mean taken as offsets from the window's first valid sample, so it is wrap-safe).  A
     compass that says the stretch was not straight lowers the intensity (claims 6-9).  A
     stretch without compass at both ends gets ``cal_no_compass_weight``.
-  - w_sanity = 1 / (1 + ((k_s/mean - 1) / cal_sanity_bound)^2): counts whose ratio is far from
-    the filtered ratio are less sane.  Seed defect: claim 11 says "increasing the intensity ...
-    responsive to determining a low level of sanity", which contradicts the purpose of the
-    check (claim 5: determining the correctness of the measured relationship); we follow the
-    intent and lower the intensity of insane counts.
+  - w_sanity = w_consistent min(1 + ((k_s/mean - 1)/cal_sanity_bound)^2, cal_sanity_boost):
+    claim 11 as written, "increasing the intensity ... responsive to determining a low level of
+    sanity" of the correction value (the filtered ratio far from what the stretches measure),
+    so a real tyre mismatch of 1-3 % is captured within a few stretches; w_consistent =
+    1/(1 + ((k_s/k_prev - 1)/cal_sanity_bound)^2) lowers a stretch that disagrees with the
+    previous one (an outlier, not a new tyre).  (The earlier reading, less intensity at low
+    sanity, never captured a mismatch above ~0.9 %.)
 * Filtered correction ratio (claim 13): a weighted mean of the stretches' k_s with forgetting
   f = 1 - w / cal_filter_stretches per stretch (a growing-memory average until the weight
   reaches cal_filter_stretches, then exponential), starting from the parameter ratio
@@ -94,6 +96,8 @@ class CalibrationFields(NamedTuple):
     pend_heading_ok: jnp.ndarray
     pend_ok: jnp.ndarray    # 1.0 if there is a pending window
     prev_bounded: jnp.ndarray  # 1.0 if the last completed window was bounded
+    prev_curvature: jnp.ndarray  # curvature of the last completed window (current coefficients)
+    prev_k: jnp.ndarray     # k_s of the last stretch (0 before the first)
 
 
 CalibrationState = packed_state(
@@ -119,7 +123,7 @@ def init_calibration_state(params):
         win_ref=z, win_hsum=z, win_hn=z,
         win_sane=jnp.ones((), jnp.float64), str_left=z, str_right=z, str_distance=z, str_heading0=z,
         str_heading0_ok=z, pend_left=z, pend_right=z, pend_distance=z, pend_heading=z, pend_heading_ok=z,
-        pend_ok=z, prev_bounded=z))
+        pend_ok=z, prev_bounded=z, prev_curvature=z, prev_k=z))
 
 
 def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok,
@@ -153,7 +157,12 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     d_left, d_right = win_left * cs.dpp_left, win_right * cs.dpp_right
     curvature = safe_div(d_left - d_right, 0.5 * (d_left + d_right))
     same_sign = win_left * win_right > 0.0
-    bounded = same_sign & (win_sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
+    # Straight (claims 2-3) without trusting the current coefficients: the window's curvature
+    # agrees with the previous window's within cal_ratio_bound (a turn changes it by far more),
+    # and stays within the largest correction of straight (a constant offset is the mismatch).
+    steady = jnp.abs(curvature - cs.prev_curvature) <= params.cal_ratio_bound
+    near_straight = jnp.abs(curvature) <= 2.0 * params.cal_max_correction + params.cal_ratio_bound
+    bounded = same_sign & (win_sane > 0.5) & steady & near_straight
     win_compass_ok = win_hn > 0.5
     win_heading = wrap(win_ref + safe_div(win_hsum, win_hn))
 
@@ -189,8 +198,13 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     tol = deg(params.cal_compass_tolerance_deg)
     both = (cs.pend_heading_ok > 0.5) & (str_heading0_ok > 0.5)
     w_compass = jnp.where(both, jnp.exp(-0.5 * (dpsi / tol) ** 2), params.cal_no_compass_weight)
-    deviation = k_s / mean - 1.0
-    w_sanity = 1.0 / (1.0 + (deviation / params.cal_sanity_bound) ** 2)
+    # Sanity (claims 10-11).  A stretch that disagrees with the previous one is an outlier: less
+    # intensity.  Stretches that agree with each other but not with the filtered ratio say the
+    # correction value is wrong: claim 11's *more* intensity at low sanity, up to cal_sanity_boost.
+    consistency = safe_div(k_s, cs.prev_k, fallback=1.0) - 1.0
+    w_consistent = jnp.where(cs.prev_k > 0.0, 1.0 / (1.0 + (consistency / params.cal_sanity_bound) ** 2), 0.5)
+    insanity = ((k_s / mean - 1.0) / params.cal_sanity_bound) ** 2
+    w_sanity = w_consistent * jnp.minimum(1.0 + insanity, params.cal_sanity_boost)
     w = jnp.where(stretch_done, w_compass * w_sanity, 0.0)
 
     # Filtered correction ratio (claim 13): weighted mean with forgetting f = 1 - w/N per stretch
@@ -234,4 +248,6 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
         str_heading0_ok=zero_if(stretch_done, str_heading0_ok),
         pend_left=pend_left, pend_right=pend_right, pend_distance=pend_distance, pend_heading=pend_heading,
         pend_heading_ok=pend_heading_ok, pend_ok=pend_ok, prev_bounded=prev_bounded,
+        prev_curvature=jnp.where(win_done, curvature, cs.prev_curvature),
+        prev_k=jnp.where(stretch_done, k_s, cs.prev_k),
     ))

@@ -11,9 +11,10 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
   and a car's yaw rate cannot jump within one sample, while a burst of spurious pulses on one
   wheel moves dD by the whole burst.
 
-Which wheel is at fault: the one whose increment departs more from its own recent rate.  Its
-increment is replaced by the other wheel's plus (or minus) the predicted dD, so AD and the
-turn of that sample stay what the vehicle did; when both wheels fail (or after
+Which wheel is at fault: the one whose increment departs more from its own recent rate.  The
+whole number of pulses by which it departs from the other wheel's increment plus (or minus) the
+predicted dD is removed from it, so AD and the turn of that sample stay what the vehicle did and
+the wheel keeps its own count; when both wheels fail (or after
 ``GUARD_MAX_SUBSTITUTED`` substitutions in a row) both are replaced by their predictions for
 that sample.  The counter references always follow the counters (resync), so a burst that
 permanently offsets one counter costs nothing after its sample, and a spike costs nothing
@@ -73,6 +74,12 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
     fix = counts_ok & ~raw_ok & trusting
     new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
+    # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
+    # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
+    spurious_left = jnp.round((d_left - new_left) / dpp) * dpp
+    spurious_right = jnp.round((d_right - new_right) / dpp) * dpp
+    new_left = jnp.where(both, new_left, d_left - spurious_left)
+    new_right = jnp.where(both, new_right, d_right - spurious_right)
     d_left = jnp.where(fix, new_left, d_left)
     d_right = jnp.where(fix, new_right, d_right)
     # A run of failures beyond GUARD_MAX_SUBSTITUTED: believe the wheels again unless a wheel is
