@@ -241,6 +241,12 @@ def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900
     return ScenarioDrive(scenario, condition, int(seed), columns, truth, truth_params, glitch_time, notes)
 
 
+def project_drive(scenario: str, seed: int, duration_s: float = 900.0) -> ScenarioDrive:
+    """A drive of the project's own simulator as it is (its anomalies, map and default vehicle)."""
+    columns, truth = simulate(scenario, duration_s, seed, fixes_sigma=4.0)
+    return ScenarioDrive(scenario, "project", int(seed), columns, truth, dict(truth["params"]))
+
+
 def matrix(seeds, scenarios=SCENARIOS, conditions=CONDITIONS, duration_s: float = 900.0):
     """Every (scenario, condition, seed) drive, in that nesting order (a generator)."""
     for seed in seeds:

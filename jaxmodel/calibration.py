@@ -127,7 +127,7 @@ def init_calibration_state(params):
 
 
 def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok,
-                     enabled):
+                     enabled, robust=False):
     """One sample of the calibration.  Returns the new CalibrationState.
 
     pulses_*: decoded pulse increments of this sample (0 when implausible); d_t: |AD| (m);
@@ -160,9 +160,11 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     # Straight (claims 2-3) without trusting the current coefficients: the window's curvature
     # agrees with the previous window's within cal_ratio_bound (a turn changes it by far more),
     # and stays within the largest correction of straight (a constant offset is the mismatch).
-    steady = jnp.abs(curvature - cs.prev_curvature) <= params.cal_ratio_bound
+    steady = jnp.abs(curvature - cs.prev_curvature) <= params.cal_steady_bound
     near_straight = jnp.abs(curvature) <= 2.0 * params.cal_max_correction + params.cal_ratio_bound
     bounded = same_sign & (win_sane > 0.5) & steady & near_straight
+    if not robust:  # the previous test: within cal_ratio_bound of straight with the current coefficients
+        bounded = same_sign & (win_sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
     win_compass_ok = win_hn > 0.5
     win_heading = wrap(win_ref + safe_div(win_hsum, win_hn))
 
@@ -205,6 +207,8 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     w_consistent = jnp.where(cs.prev_k > 0.0, 1.0 / (1.0 + (consistency / params.cal_sanity_bound) ** 2), 0.5)
     insanity = ((k_s / mean - 1.0) / params.cal_sanity_bound) ** 2
     w_sanity = w_consistent * jnp.minimum(1.0 + insanity, params.cal_sanity_boost)
+    if not robust:  # the previous reading: less intensity at low sanity
+        w_sanity = 1.0 / (1.0 + insanity)
     w = jnp.where(stretch_done, w_compass * w_sanity, 0.0)
 
     # Filtered correction ratio (claim 13): weighted mean with forgetting f = 1 - w/N per stretch

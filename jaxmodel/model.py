@@ -39,13 +39,18 @@ class Config(NamedTuple):
     mode: 'complementary' (default, US 4,734,863), 'odometer' (wheel heading started from the
     compass), 'compass', or 'kalman' (US 4,680,715).  refine_a: online refinement of a
     (eq. 9-13).  calibration: left/right dpp calibration (EP 0619873).  track: 'closed_form'
-    (eq. 14) or 'table' (claims 15-16).
+    (eq. 14) or 'table' (claims 15-16).  robust: issue 10's robust estimator (odometer guard
+    of jaxmodel/plausibility.py in every mode, the three-state F-DELTA filter of
+    jaxmodel/offset_filter.py, B_E per heading, FIG. 8E before 8F, calibration that captures
+    up to cal_max_correction, reliability 0 before any absolute heading); off, the seed filter
+    as tuned on the project's simulator (docs/tuning.md).
     """
 
     mode: str = "complementary"
     refine_a: bool = True
     calibration: bool = True
     track: str = "closed_form"
+    robust: bool = False
 
 
 DEFAULT_CONFIG = Config()
@@ -166,7 +171,7 @@ def _decode_counter(count, last, modulus):
     return d - modulus * jnp.round(d / modulus)
 
 
-def _odometer(params, state, sample, track_table):
+def _odometer(params, state, sample, track_table, robust=False):
     """Distances, speed, windowed curvature and the wheel heading change of one sample (FIG. 8B)."""
     started = state.started > 0.5
     dt_raw = sample.time_s - state.last_time
@@ -181,12 +186,24 @@ def _odometer(params, state, sample, track_table):
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
-    d_left, d_right, raw_ok, kept, guard_state = _guard.guard(
-        params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
-        jnp.maximum(dpp_left, dpp_right))
-    n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
-    n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
-    plausible = raw_ok
+    if robust:
+        d_left, d_right, raw_ok, kept, guard_state = _guard.guard(
+            params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
+            jnp.maximum(dpp_left, dpp_right))
+        n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
+        n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
+        plausible = raw_ok
+    else:
+        # A jump beyond max_speed (over the sample interval, 0.1 s if the time step is unusable)
+        # is a counter fault; the sample's distance is dropped and the counters resync.
+        d_left, d_right = n_left * dpp_left, n_right * dpp_right
+        limit = params.max_speed * jnp.where(time_ok, dt, 0.1) + 2.0 * jnp.maximum(dpp_left, dpp_right)
+        plausible = counts_finite & started & (jnp.abs(d_left) <= limit) & (jnp.abs(d_right) <= limit)
+        d_left = jnp.where(plausible, d_left, 0.0)
+        d_right = jnp.where(plausible, d_right, 0.0)
+        n_left = jnp.where(plausible, n_left, 0.0)
+        n_right = jnp.where(plausible, n_right, 0.0)
+        kept, guard_state = plausible, state.guard
 
     dD = d_left - d_right
     AD = 0.5 * (d_left + d_right)
@@ -225,12 +242,19 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         track_table = _track.effective_track_table(params.P, params.B, params.T_F, params.curvature_clip)
     elif config.track not in ("table", "closed_form"):
         raise ValueError(f"unknown track model {config.track!r}; expected 'closed_form' or 'table'")
-    odo = _odometer(params, state, sample, track_table)
+    robust = config.robust
+    odo = _odometer(params, state, sample, track_table, robust)
     d_t, alpha = odo["d_t"], odo["alpha"]
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
     h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
-    b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
+    if robust:
+        b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
+    else:  # B_E: the parameter when given (> 0), else the running mean of |B| (kept in bin 0)
+        field_sum = state.field_sum.at[0].add(jnp.where(compass_ok, b_m, 0.0))
+        field_count = state.field_count.at[0].add(jnp.where(compass_ok, 1.0, 0.0))
+        learned = safe_div(field_sum[0], field_count[0], fallback=1.0)
+        b_e = jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
@@ -242,38 +266,62 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     # FIG. 8D: wheel error bound.
     e_w = _hf.wheel_error_bound(params, state.e_w, alpha, d_t)
 
-    # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
-    # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
-    compass_delta = wrap(h_c - wheel_heading)
-    compass_on = compass_ok & (initialized > 0.5)
-    distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
-    update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
-    history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
-                        state.delta_history)
-    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
+    if robust:
+        # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
+        # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
+        compass_delta = wrap(h_c - wheel_heading)
+        compass_on = compass_ok & (initialized > 0.5)
+        distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
+        update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
+        history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
+                            state.delta_history)
+        sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
+        factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
+        distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
 
-    # FIG. 8F: map-heading selector, then DELTA.
-    absolute, delta, map_used = _hf.select_absolute_heading(
-        params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
-        sample.compass_unreliable_area)
-    absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
+        # FIG. 8F: map-heading selector, then DELTA.
+        absolute, delta, map_used = _hf.select_absolute_heading(
+            params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
+            sample.compass_unreliable_area)
+        absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
 
-    # FIG. 8G / 8H: F-DELTA by the robust offset filter (jaxmodel/offset_filter.py), EH = H_W + F-DELTA.
-    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
-    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
-                      jnp.sqrt(deg(params.kf_compass_sigma_deg) ** 2 + (params.kf_compass_ec_weight * e_c) ** 2))
-    offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, jnp.where(map_used, 1.0, factor),
-                                          absolute_ok & ~initializing)
-    offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
-    f_delta = offset.delta
-    complementary = wrap(wheel_heading + f_delta)
+        # FIG. 8G / 8H: F-DELTA by the robust offset filter (jaxmodel/offset_filter.py), EH = H_W + F-DELTA.
+        distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
+        offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
+        sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
+                          jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
+        offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
+                                              absolute_ok & ~initializing)
+        offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
+        f_delta = offset.delta
+        complementary = wrap(wheel_heading + f_delta)
 
-    field_sum, field_count = _compass.learn_field(
-        params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
-        compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+        field_sum, field_count = _compass.learn_field(
+            params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
+            compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+    else:
+        # FIG. 8F (map selector) and DELTA (FIG. 8 block 5).
+        absolute, delta, map_used = _hf.select_absolute_heading(
+            params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
+            sample.compass_unreliable_area)
+        absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
+
+        # FIG. 8 block 6 / 8E / 8E-A: every F_update_distance_m, SDD and F.
+        distance_since_F = state.distance_since_F + jnp.where(absolute_ok, d_t, 0.0)
+        update_F = absolute_ok & (distance_since_F >= params.F_update_distance_m)
+        history = jnp.where(update_F, jnp.concatenate([delta[None], state.delta_history[:2]]), state.delta_history)
+        sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
+        factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
+        distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
+
+        # FIG. 8G / 8H: F-DELTA and EH (the previous default, tuned on the project's simulator).
+        distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
+        gain = _hf.filter_gain(params, d_t, factor, distance_filtered)
+        f_delta = jnp.where(initializing, 0.0,
+                            jnp.where(absolute_ok, _hf.update_f_delta(state.f_delta, delta, gain), state.f_delta))
+        complementary = wrap(wheel_heading + f_delta)
+        compass_delta = wrap(h_c - wheel_heading)
+        offset = state.offset
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
@@ -283,9 +331,10 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     # EP 0619873: left/right distance-per-pulse calibration.
     cal_state = _cal.calibration_step(
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=d_t,
-        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration)
+        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
+        robust=robust)
     # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
-    if config.calibration:
+    if config.calibration and robust:
         rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
         rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
         offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
@@ -315,7 +364,10 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _offset.bound(offset, initialized)
+    bound = _offset.bound(offset, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
+    reliability = _hf.reliability(params, bound)
+    if robust:
+        reliability = jnp.where(initialized > 0.5, reliability, 0.0)
     new_state = State(
         started=jnp.ones((), jnp.float64),
         initialized=initialized,
@@ -330,7 +382,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
-        heading_reliability=jnp.where(initialized > 0.5, _hf.reliability(params, bound), 0.0), heading_bound=bound,
+        heading_reliability=reliability, heading_bound=bound,
         compass_valid=jnp.where(compass_ok, 1.0, 0.0), odometer_valid=jnp.where(odo["plausible"], 1.0, 0.0),
         curvature=odo["curvature"], effective_track=odo["track"], factor=factor, f_delta=f_delta, e_c=e_c, e_w=e_w,
         map_used=jnp.where(map_used, 1.0, 0.0),
