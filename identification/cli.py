@@ -68,6 +68,7 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("build-fmu", help="export the estimator FMU")
     b.add_argument("--params", default=None)
     b.add_argument("--out", default="build/OdoCompass.fmu")
+    b.add_argument("--native", action="store_true", help="Python-free C FMU (default --out build/OdoCompassNative.fmu)")
 
     m = sub.add_parser("import", help="convert a real log to the drive schema")
     m.add_argument("kind", choices=("comma2k19", "husky"))
