@@ -40,7 +40,6 @@ import weakref
 from pathlib import Path
 
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
-from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 BUNDLE_DIR = "odocompass_bundle"
@@ -70,18 +69,6 @@ class OdoCompass(Fmi2Slave):
     description = ("Dead-reckoning heading estimator (differential odometer + magnetic compass, "
                    "US 4,788,645 / US 4,734,863): the odocompass jaxmodel step as an FMI 2.0 co-simulation FMU")
     version = "0.1.0"
-    default_experiment = DefaultExperiment(start_time=0.0, step_size=0.1)
-    log_categories = {
-        "logStatusWarning": "Log messages with fmi2Warning status.",
-        "logStatusDiscard": "Log messages with fmi2Discard status.",
-        "logStatusError": "Log messages with fmi2Error status.",
-        "logStatusFatal": "Log messages with fmi2Fatal status.",
-        "logAll": "Log all messages.",
-        "logBadInput": "Rejected input samples: non-finite compass or position-fix values, implausible pulse counters.",
-        "logBadStep": "Rejected communication steps: zero, negative or non-finite step size, time not advancing.",
-        "logBadParameter": "Parameters or configuration refused at initialization.",
-        "logEngine": "Engine preparation, timing and state save/restore.",
-    }
 
     # ------------------------------------------------------------------------------------------
     def __init__(self, **kwargs):
@@ -91,6 +78,7 @@ class OdoCompass(Fmi2Slave):
         self._manifest = json.loads((self._bundle / "manifest.json").read_text())
         bid = self._manifest["bundle_id"]
         self._support = _private_module(f"_odocompass_fmi_support_{bid}", self._bundle / "fmi_support.py")
+        self._md = _private_module(f"_odocompass_model_description_{bid}", self._bundle / "model_description.py")
         self._engine_module = None
         self._stepper = None
         self._prepared_key = None
@@ -112,7 +100,6 @@ class OdoCompass(Fmi2Slave):
         self._params = {}  # JSON-style parameter values (jaxmodel.make_params input)
         self._config = {}
         self._meta = {}
-        self._real_starts = {}
         self._real_in, self._int_in, self._bool_in, self._real_out = {}, {}, {}, {}
         self._real_par, self._string_par, self._bool_par = {}, {}, {}
         self._out_slot = {o.get("field", o["name"]): o["slot"] for o in m["outputs"]}
@@ -122,56 +109,55 @@ class OdoCompass(Fmi2Slave):
         self._i_map, self._i_map_valid = f.index("map_heading"), f.index("map_valid")
         self._i_fe, self._i_fn, self._i_fix_valid = f.index("fix_east_m"), f.index("fix_north_m"), f.index("fix_valid")
 
-        for spec in m["inputs"]:
-            name, slot, kind = spec["name"], spec["slot"], spec["type"]
-            self._x[slot] = float(spec["start"])
-            common = dict(causality=Fmi2Causality.input, description=spec["description"])
-            if kind == "Integer":
-                var = Integer(name, variability=Fmi2Variability.discrete, start=int(spec["start"]), **common)
-                self._register(var, self._int_in, slot)
-            elif kind == "Boolean":
-                var = Boolean(name, variability=Fmi2Variability.discrete, start=bool(spec["start"]), **common)
-                self._register(var, self._bool_in, slot)
+        self._bool_out = {}
+        # one canonical order (value reference = position), shared with the native FMU
+        for spec in self._md.variables(m):
+            name, kind, group = spec["name"], spec["type"], spec["group"]
+            if group == "input":
+                slot = spec["slot"]
+                self._x[slot] = float(spec["start"])
+                common = dict(causality=Fmi2Causality.input, description=spec["description"])
+                if kind == "Integer":
+                    var = Integer(name, variability=Fmi2Variability.discrete, start=int(spec["start"]), **common)
+                    self._register(var, self._int_in, slot)
+                elif kind == "Boolean":
+                    var = Boolean(name, variability=Fmi2Variability.discrete, start=bool(spec["start"]), **common)
+                    self._register(var, self._bool_in, slot)
+                else:
+                    var = Real(name, variability=Fmi2Variability.continuous, start=float(spec["start"]), **common)
+                    self._register(var, self._real_in, slot)
+            elif group == "output":
+                cls, table = (Boolean, self._bool_out) if kind == "Boolean" else (Real, self._real_out)
+                var = cls(name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+                          description=spec["description"])
+                self._register(var, table, spec["slot"])
+            elif group == "discarded":
+                var = Integer(name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+                              description=spec["description"])
+                self._int_out_vr = self._register(var, None, None)
+            elif group == "parameter":
+                key, index = spec["key"], spec.get("index")
+                if index is None:
+                    self._params[key] = spec["start"]
+                else:
+                    self._params.setdefault(key, [0.0] * spec["size"])[index] = float(spec["start"])
+                common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                              initial=Fmi2Initial.exact, description=spec["description"])
+                if kind == "String":
+                    self._register(String(name, start=str(spec["start"]), **common), self._string_par, key)
+                elif kind == "Integer":
+                    self._register(Integer(name, start=int(spec["start"]), **common), self._real_par, (key, index))
+                else:
+                    self._register(Real(name, start=float(spec["start"]), **common), self._real_par, (key, index))
             else:
-                var = Real(name, variability=Fmi2Variability.continuous, start=float(spec["start"]), **common)
-                self._register(var, self._real_in, slot)
-                self._real_starts[name] = float(spec["start"])
-            self._meta[name] = spec
-
-        for spec in m["outputs"]:
-            var = Real(spec["name"], causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
-                       description=spec["description"])
-            self._register(var, self._real_out, spec["slot"])
-            self._meta[spec["name"]] = spec
-        var = Integer("discarded_samples", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
-                      description="number of samples refused so far (fmi2Discard, or accepted with a warning when "
-                                  "discard_bad_samples is false)")
-        self._int_out_vr = self._register(var, None, None)
-
-        for spec in m["parameters"]:
-            key, index, kind = spec["key"], spec.get("index"), spec["type"]
-            if index is None:
-                self._params[key] = spec["start"]
-            else:
-                self._params.setdefault(key, [0.0] * spec["size"])[index] = float(spec["start"])
-            common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-                          initial=Fmi2Initial.exact, description=spec["description"])
-            if kind == "String":
-                self._register(String(spec["name"], start=str(spec["start"]), **common), self._string_par, key)
-            else:
-                self._register(Real(spec["name"], start=float(spec["start"]), **common), self._real_par, (key, index))
-                self._real_starts[spec["name"]] = float(spec["start"])
-            self._meta[spec["name"]] = spec
-
-        for spec in m["config"]:
-            name = spec["name"]
-            self._config[name] = spec["start"]
-            common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-                          initial=Fmi2Initial.exact, description=spec["description"])
-            if spec["type"] == "Boolean":
-                self._register(Boolean(name, start=bool(spec["start"]), **common), self._bool_par, name)
-            else:
-                self._register(String(name, start=str(spec["start"]), **common), self._string_par, ("config", name))
+                self._config[name] = spec["start"]
+                common = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                              initial=Fmi2Initial.exact, description=spec["description"])
+                if kind == "Boolean":
+                    self._register(Boolean(name, start=bool(spec["start"]), **common), self._bool_par, name)
+                else:
+                    self._register(String(name, start=str(spec["start"]), **common), self._string_par,
+                                   ("config", name))
             self._meta[name] = spec
 
     def _register(self, var, table, slot):
@@ -185,8 +171,16 @@ class OdoCompass(Fmi2Slave):
 
     # ------------------------------------------------------------------------------------------
     def to_xml(self, model_options=dict()):
-        root = super().to_xml(model_options)
-        return self._support.decorate(root, self._meta, self._real_starts)
+        """The model description from the generator shared with the native FMU (model_description.py)."""
+        from pythonfmu import __version__ as pythonfmu_version
+
+        base = super().to_xml(model_options)  # pythonfmu's CoSimulation options, GUID and date
+        cs = dict(base.find("CoSimulation").attrib)
+        identifier = cs.pop("modelIdentifier")
+        return self._md.to_xml(self._manifest, guid=base.get("guid"), model_identifier=identifier,
+                               generation_tool=f"PythonFMU {pythonfmu_version} (odocompass build-fmu)",
+                               cs_options=cs, description=type(self).description, author=type(self).author,
+                               version=type(self).version, date=base.get("generationDateAndTime"))
 
     # -- logging --------------------------------------------------------------------------------
     def _log(self, msg, status=Fmi2Status.ok, category="logAll"):
@@ -205,6 +199,10 @@ class OdoCompass(Fmi2Slave):
             if self._o_stale:
                 self._refresh_outputs()
             return self._o[self._real_out[vr]]
+        if vr in self._bool_out:
+            if self._o_stale:
+                self._refresh_outputs()
+            return self._o[self._bool_out[vr]] == 1.0
         if vr in self._real_in:
             return self._x[self._real_in[vr]]
         if vr in self._int_in:
@@ -233,8 +231,10 @@ class OdoCompass(Fmi2Slave):
             self._x[self._bool_in[vr]] = 1.0 if value else 0.0
         elif vr in self._real_par or vr in self._string_par or vr in self._bool_par:
             if self._phase == "stepping":
-                self._log(f"parameter {self.vars[vr].name} is fixed after initialization; set ignored",
-                          Fmi2Status.warning, "logBadParameter")
+                # an fmi2Error; pythonfmu 0.7.0 answers OK or (for any exception) Fatal, after which it
+                # frees the slave object: an error-status message is the most it allows
+                self._log(f"parameter {self.vars[vr].name} is fixed after initialization; set refused",
+                          Fmi2Status.error, "logBadParameter")
                 return
             if vr in self._real_par:
                 key, index = self._real_par[vr]
@@ -252,7 +252,8 @@ class OdoCompass(Fmi2Slave):
                 self._config[self._bool_par[vr]] = bool(value)
             self._stepper = None
         else:
-            self._log(f"variable {vr} cannot be set", Fmi2Status.warning, "logStatusWarning")
+            name = self.vars[vr].name if vr in self.vars else "unknown"
+            self._log(f"variable {vr} ({name}) cannot be set: set refused", Fmi2Status.error, "logBadParameter")
             return
         if self._phase == "initialization":
             self._o_stale = True
@@ -467,14 +468,12 @@ class OdoCompass(Fmi2Slave):
             self._log(f"step refused: {self._refused}", Fmi2Status.error, "logBadParameter")
             return False
         if not (0.0 < h < float("inf")):
-            self._log(f"communication step size h={h!r} at t={t!r} s: must be positive and finite; step discarded, "
-                      "estimator state unchanged", Fmi2Status.discard, "logBadStep")
-            return False
+            return self._refuse(f"communication step size h={h!r} at t={t!r} s: must be positive and finite",
+                                t + h, "logBadStep")
         t_sample = t + h
         if not (t_sample > self._t_last) or t_sample != t_sample:
-            self._log(f"sample time t+h={t_sample!r} s does not advance past the last sample ({self._t_last!r} s); "
-                      "step discarded, estimator state unchanged", Fmi2Status.discard, "logBadStep")
-            return False
+            return self._refuse(f"sample time t+h={t_sample!r} s does not advance past the last sample "
+                                f"({self._t_last!r} s)", t_sample, "logBadStep")
         x = self._x
         x[0] = t_sample
         problem = None
@@ -516,11 +515,14 @@ class OdoCompass(Fmi2Slave):
             self._timing["first_step"] = time.perf_counter()
         return True
 
-    def _refuse(self, problem, t_sample):
+    def _refuse(self, problem, t_sample, category="logBadInput"):
+        """Skip a bad sample: state and outputs unchanged, counted, logged as a warning.  pythonfmu's
+        doStep can answer only OK or Discard, and Discard reports "terminated" for good, so a skipped
+        sample answers OK (the native FMU answers fmi2Warning): conformant masters go on."""
         self._discarded += 1
-        self._log(f"{problem} at t={t_sample!r} s: sample discarded (fmi2Discard), estimator state unchanged",
-                  Fmi2Status.discard, "logBadInput")
-        return False
+        self._log(f"{problem} at t={t_sample!r} s: sample skipped, estimator state unchanged "
+                  f"(discarded_samples={self._discarded})", Fmi2Status.warning, category)
+        return True
 
     def _counter_message(self, t_sample):
         mod = float(self._params.get("counter_modulus", 65536.0))

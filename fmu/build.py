@@ -36,7 +36,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 ESTIMATOR_SCRIPT = HERE / "OdoCompass.py"
 VEHICLE_SCRIPT = HERE / "VehicleSensors.py"
-BUNDLED = ("engine.py", "jaxpr_lower.py", "fmi_support.py")
+BUNDLED = ("engine.py", "jaxpr_lower.py", "fmi_support.py", "model_description.py")
 
 MODEL_OPTIONS = dict(
     needsExecutionTool=True,  # a Python interpreter with jax, numpy (and pythonfmu's runtime)
@@ -47,69 +47,8 @@ MODEL_OPTIONS = dict(
     canSerializeFMUstate=True,
 )
 
-# FMU metadata of jaxmodel.Inputs fields: (FMI type, unit, start, description).  time_s is the
-# communication time, not a variable.
-INPUT_META: dict[str, tuple[str, str | None, Any, str]] = {
-    "left_pulses": ("Integer", None, 0, "cumulative left wheel pulse counter (counts; wraps at counter_modulus; "
-                                        "small decrements are reversing)"),
-    "right_pulses": ("Integer", None, 0, "cumulative right wheel pulse counter (counts; wraps at counter_modulus)"),
-    "compass_x": ("Real", "compass", 0.0, "compass field component x (compass units, e.g. uT); for an ideal sensor "
-                                          "atan2(compass_y, compass_x) is the magnetic heading"),
-    "compass_y": ("Real", "compass", 0.0, "compass field component y (compass units, e.g. uT)"),
-    "map_heading": ("Real", "rad", 0.0, "street heading from the map, clockwise from true north (either direction "
-                                        "of a two-way street)"),
-    "map_valid": ("Boolean", None, False, "the vehicle is on a mapped street: map_heading is valid"),
-    "compass_unreliable_area": ("Boolean", None, False, "the map flags the area as magnetically unreliable "
-                                                        "(the map heading may replace the compass, FIG. 8F)"),
-    "fix_east_m": ("Real", "m", 0.0, "position fix, east (Kalman mode)"),
-    "fix_north_m": ("Real", "m", 0.0, "position fix, north (Kalman mode)"),
-    "fix_valid": ("Boolean", None, False, "a position fix is present in this sample"),
-}
-
-# FMU metadata of jaxmodel.Outputs fields: (unit, display unit, description).
-OUTPUT_META: dict[str, tuple[str, str | None, str]] = {
-    "heading": ("rad", "deg", "estimated heading of the selected mode (EH, FIG. 8H), clockwise from true north, "
-                              "wrapped to (-pi, pi]"),
-    "wheel_heading": ("rad", "deg", "wheel (odometer) heading H_W, wrapped"),
-    "compass_heading": ("rad", "deg", "compass heading H_C (FIG. 8A; the last valid one when this sample's compass "
-                                      "is unusable), wrapped"),
-    "x": ("m", None, "dead-reckoned position, east"),
-    "y": ("m", None, "dead-reckoned position, north"),
-    "speed": ("m/s", "km/h", "speed from the wheel distances"),
-    "a": ("s2/m2", None, "current velocity coefficient a of eq. (8) (refined online, eq. 9-13)"),
-    "heading_reliability": ("1", None, "heading reliability in (0, 1]: 1 / (1 + heading_bound / reliability_scale)"),
-    "heading_bound": ("rad", "deg", "bound on the heading error from SDD, E_W and E_C"),
-    "compass_valid": ("1", None, "1 if this sample's compass reading was used, else 0"),
-    "odometer_valid": ("1", None, "1 if this sample's pulse counts were plausible, else 0"),
-    "curvature": ("1", None, "windowed dD/AD (curvature over the travelled-distance window)"),
-    "effective_track": ("m", None, "track T used in eq. (8): T_E of eq. (14) (front) or T_R (rear)"),
-    "factor": ("1", None, "filter factor F (FIG. 8E)"),
-    "f_delta": ("rad", "deg", "F-DELTA, the filtered compass-minus-wheel heading (FIG. 8G)"),
-    "e_c": ("rad", "deg", "compass error bound E_C (FIG. 8C)"),
-    "e_w": ("rad", "deg", "wheel error bound E_W (FIG. 8D)"),
-    "map_used": ("1", None, "1 if the map heading replaced the compass in this sample (FIG. 8F)"),
-    "dpp_ratio": ("1", None, "current dpp_right / dpp_left of the left/right calibration (EP 0619873)"),
-    "distance": ("m", "km", "distance travelled"),
-    "initialized": ("1", None, "1 once a valid compass sample has started the heading (before that the heading "
-                               "outputs are 0 and meaningless)"),
-}
-
-# FMI names must be unique: the output ``a`` (the current, refined velocity coefficient) would
-# collide with the parameter ``a`` (SPEC §3 key: its initial value), so the output is renamed.
-OUTPUT_RENAMES = {"a": "a_current"}
-
-CONFIG_META = (
-    ("mode", "String", "complementary", "estimator mode: complementary (US 4,734,863), odometer, compass or kalman"),
-    ("refine_a", "Boolean", True, "online refinement of the velocity coefficient a (US 4,788,645 eq. 9-13)"),
-    ("calibration", "Boolean", True, "left/right distance-per-pulse calibration (EP 0619873)"),
-    ("track", "String", "closed_form", "effective track model: closed_form (eq. 14) or table (claims 15-16)"),
-    ("engine", "String", "auto", "auto: native if compiled for this configuration, else python; native: the "
-                                 "jaxmodel step's jaxpr lowered to C and compiled at build time; python: lowered to "
-                                 "Python at initialization; xla: compiled by XLA"),
-    ("discard_bad_samples", "Boolean", True, "true: a bad sample is refused with fmi2Discard and not consumed; "
-                                             "false: it is logged as a warning and passed to the estimator, "
-                                             "which skips what is unusable (as odocompass estimate does)"),
-)
+# The estimator's variables, units and metadata: one generator for both FMUs (fmu/model_description.py).
+from .model_description import CONFIG_META, INPUT_META, OUTPUT_META, OUTPUT_RENAMES  # noqa: E402,F401
 
 VEHICLE_TRUE_KEYS = ("sensor_axle", "P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right", "counter_modulus",
                      "field_magnitude", "variation_deg", "X0", "Y0", "rotation_deg", "deviation_deg")
@@ -176,45 +115,13 @@ def _params_dict(params) -> dict[str, Any]:
 
 
 def estimator_manifest(values: Mapping[str, Any]) -> dict[str, Any]:
-    """Variables of the estimator FMU from jaxmodel's tables, with ``values`` as start values."""
+    """Variables of the estimator FMU from jaxmodel's tables, ``values`` as start values, min/max from
+    the rules of ``jaxmodel.validate_params`` (``fmu.param_rules``)."""
     import jaxmodel
-    from jaxmodel.params import PARAMETER_TABLE
 
-    params = []
-    for spec in PARAMETER_TABLE:
-        value = values[spec.key]
-        if spec.key == "sensor_axle":
-            params.append(dict(name=spec.key, key=spec.key, index=None, type="String", unit=None, start=value,
-                               description=spec.description))
-        elif isinstance(value, (list, tuple)):
-            for i, v in enumerate(value):
-                params.append(dict(name=f"{spec.key}_{i}", key=spec.key, index=i, size=len(value), type="Real",
-                                   unit=spec.unit, start=float(v),
-                                   description=f"{spec.description} [entry {i}: raw heading {i * 360 // len(value)} deg]"))
-        else:
-            params.append(dict(name=spec.key, key=spec.key, index=None, type="Real", unit=spec.unit or "1",
-                               start=float(value), description=spec.description))
-    fields = list(jaxmodel.Inputs._fields)
-    if fields[0] != "time_s":
-        raise RuntimeError(f"jaxmodel.Inputs must start with time_s, got {fields}")
-    inputs = []
-    for slot, name in enumerate(fields):
-        if name == "time_s":
-            continue
-        kind, unit, start, desc = INPUT_META.get(name, ("Real", "1", 0.0, name))
-        inputs.append(dict(name=name, slot=slot, type=kind, unit=unit, start=start, description=desc))
-    outputs = []
-    taken = {p["name"] for p in params} | {i["name"] for i in inputs}
-    for slot, field in enumerate(jaxmodel.Outputs._fields):
-        unit, display, desc = OUTPUT_META.get(field, ("1", None, field))
-        name = OUTPUT_RENAMES.get(field, field)
-        if name in taken:
-            raise RuntimeError(f"FMU output {name!r} (jaxmodel.Outputs.{field}) collides with a parameter or input")
-        outputs.append(dict(name=name, field=field, slot=slot, type="Real", unit=unit, display_unit=display,
-                            description=desc))
-    config = [dict(name=n, type=t, start=s, description=d) for n, t, s, d in CONFIG_META]
-    return dict(format="odocompass-fmu-manifest/1", model="OdoCompass", sample_fields=fields, inputs=inputs,
-                outputs=outputs, parameters=params, config=config)
+    from . import model_description, param_rules
+
+    return model_description.manifest(values, param_rules.bounds(param_rules.derive(jaxmodel)), jaxmodel)
 
 
 def vehicle_manifest(values: Mapping[str, Any]) -> dict[str, Any]:
@@ -459,8 +366,14 @@ def build_vehicle(out: str | Path = "build/VehicleSensors.fmu", params=None) -> 
 
 
 def main(args) -> int:
-    """``odocompass build-fmu [--params P.json] [--out build/OdoCompass.fmu]``."""
-    out = build_estimator(args.out, args.params)
+    """``odocompass build-fmu [--params P.json] [--out build/OdoCompass.fmu] [--native]``."""
+    if getattr(args, "native", False):
+        from .native_fmu import build_native_fmu
+
+        out = build_native_fmu("build/OdoCompassNative.fmu" if args.out == "build/OdoCompass.fmu" else args.out,
+                               args.params)
+    else:
+        out = build_estimator(args.out, args.params)
     from fmpy import read_model_description
 
     md = read_model_description(str(out))
