@@ -77,6 +77,7 @@ class Slave:
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
         self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
         self.time = None
+        self.last_status = None
 
     # -- values -----------------------------------------------------------------------------
     def set(self, values: Mapping[str, Any]) -> None:
@@ -127,17 +128,27 @@ class Slave:
         self.time = start_time
 
     def step(self, t: float, h: float) -> bool:
-        """``fmi2DoStep(t, h)``: True for fmi2OK/Warning, False for fmi2Discard; other statuses raise."""
+        """``fmi2DoStep(t, h)``: True when the step consumed its sample; False for fmi2Discard or when
+        the FMU skipped the sample (its ``discarded_samples`` output went up; the OdoCompass FMUs answer
+        a skipped sample with fmi2Warning (native) or fmi2OK (pythonfmu) so that masters go on).
+        ``last_status`` keeps the answer's name; statuses above fmi2Discard raise."""
         from fmpy.fmi1 import FMICallException
 
+        before = self._discarded_count()
         try:
-            self.fmu.doStep(t, h)
+            status = self.fmu.fmi2DoStep(self.fmu.component, t, h, 1)  # fmpy's doStep drops the status
         except FMICallException as exc:
+            self.last_status = STATUS[exc.status] if 0 <= exc.status < len(STATUS) else str(exc.status)
             if exc.status == 2:
                 return False
             raise
+        self.last_status = STATUS[status] if isinstance(status, int) and 0 <= status < len(STATUS) else "OK"
         self.time = t + h
-        return True
+        return before is None or self._discarded_count() == before
+
+    def _discarded_count(self):
+        vr = self.vr.get("discarded_samples")
+        return None if vr is None else self.fmu.getInteger([vr])[0]
 
     def close(self) -> None:
         try:
@@ -186,22 +197,28 @@ def replay(fmu_path: str | Path, columns: Mapping[str, Sequence[float]], paramet
     names = [n for n in INPUT_NAMES if n in cols]
     own = slave is None
     s = slave or Slave(fmu_path, "replay")
-    outputs = list(outputs or [v.name for v in s.md.modelVariables if v.causality == "output" and v.type == "Real"])
+    outputs = list(outputs or [v.name for v in s.md.modelVariables
+                               if v.causality == "output" and v.type in ("Real", "Boolean")])
     try:
         s.initialize(float(t[0]), parameters, _sample(cols, 0, names))
         res = {n: np.empty(t.shape[0]) for n in outputs}
         status = np.ones(t.shape[0], dtype=np.int8)
-        vrs = [s.vr[n] for n in outputs]
-        first = s.fmu.getReal(vrs)
-        for j, n in enumerate(outputs):
-            res[n][0] = first[j]
+        real = [n for n in outputs if s.vars[n].type == "Real"]
+        flags = [n for n in outputs if s.vars[n].type == "Boolean"]
+        vrs, fvrs = [s.vr[n] for n in real], [s.vr[n] for n in flags]
+
+        def record(k):
+            for n, v in zip(real, s.fmu.getReal(vrs) if vrs else []):
+                res[n][k] = v
+            for n, v in zip(flags, s.fmu.getBoolean(fvrs) if fvrs else []):
+                res[n][k] = 1.0 if v else 0.0
+
+        record(0)
         for k in range(1, t.shape[0]):
             s.set(_sample(cols, k, names))
             ok = s.step(float(t[k - 1]), float(t[k] - t[k - 1]))
             status[k] = 1 if ok else 0
-            vals = s.fmu.getReal(vrs)
-            for j, n in enumerate(outputs):
-                res[n][k] = vals[j]
+            record(k)
         res["status"] = status
         res["messages"] = list(s.messages)
         return res

@@ -292,7 +292,7 @@ def build_native_fmu(out: str | Path = "build/OdoCompassNative.fmu", params=None
         (fmu_dir / "documentation" / "build.json").write_text(json.dumps(
             {"configs": [_config_key(c) for c in configs], "rules": {"finite": list(rules.finite),
              "intervals": [r._asdict() for r in rules.intervals], "orders": [o._asdict() for o in rules.orders]},
-             "state": state_names}, indent=1, default=str) + "\n")
+             "state": state_names, "n_param": eng.layout["n_param"]}, indent=1, default=str) + "\n")
         out.parent.mkdir(parents=True, exist_ok=True)
         part = out.with_name(out.name + ".part")
         with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:

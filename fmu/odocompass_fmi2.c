@@ -52,7 +52,8 @@ typedef struct {
     char name[256];
     int logging_on;
     int category_on[ODC_N_CATEGORIES];
-    char msg[MSG_LEN];
+    char text[MSG_LEN];
+    char msg[2 * MSG_LEN];
 } odc_inst;
 
 /* ---------------------------------------------------------------------------------------- */
@@ -78,7 +79,7 @@ static int category_index(const char *category)
 }
 
 /* fmi2OK messages need logging on and their category (or logAll) enabled; warnings and errors
- * are always reported. The text goes through "%s": a '%' in it is never a format. */
+ * are always reported. */
 static void odc_log(odc_inst *c, fmi2Status status, const char *category, const char *fmt, ...)
 {
     va_list ap;
@@ -88,9 +89,20 @@ static void odc_log(odc_inst *c, fmi2Status status, const char *category, const 
         if (!c->logging_on || !((i >= 0 && c->category_on[i]) || (all >= 0 && c->category_on[all]))) return;
     }
     va_start(ap, fmt);
-    vsnprintf(c->msg, sizeof c->msg, fmt, ap);
+    vsnprintf(c->text, sizeof c->text, fmt, ap);
     va_end(ap);
-    c->cb.logger(c->cb.componentEnvironment, c->name, status, category, "%s", c->msg);
+    /* the logger's message is a printf format: pass the text itself with '%' doubled and no
+     * arguments, so hosts that print it without formatting (ctypes callbacks) see it whole */
+    {
+        const char *in = c->text;
+        char *out = c->msg, *end = c->msg + sizeof c->msg - 2;
+        for (; *in && out < end; in++) {
+            if (*in == '%') *out++ = '%';
+            *out++ = *in;
+        }
+        *out = '\0';
+    }
+    c->cb.logger(c->cb.componentEnvironment, c->name, status, category, c->msg);
 }
 
 static void set_defaults(odc_dyn *d)
