@@ -78,6 +78,7 @@ class OdoCompass(Fmi2Slave):
         self._manifest = json.loads((self._bundle / "manifest.json").read_text())
         bid = self._manifest["bundle_id"]
         self._support = _private_module(f"_odocompass_fmi_support_{bid}", self._bundle / "fmi_support.py")
+        self._exit_guard = self._support.guard_pythonfmu_exit(res)
         self._md = _private_module(f"_odocompass_model_description_{bid}", self._bundle / "model_description.py")
         self._engine_module = None
         self._stepper = None

@@ -82,6 +82,7 @@ class VehicleSensors(Fmi2Slave):
         self._manifest = json.loads((self._bundle / "manifest.json").read_text())
         bid = self._manifest["bundle_id"]
         self._support = _private_module(f"_odocompass_fmi_support_{bid}", self._bundle / "fmi_support.py")
+        self._exit_guard = self._support.guard_pythonfmu_exit(res)
         self._sensors_name = f"_odocompass_vehicle_sensors_{bid}"
         self._meta, self._real_starts = {}, {}
         self._p = {}
