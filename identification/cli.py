@@ -1,7 +1,18 @@
 """The ``odocompass`` command line (SPEC §5).
 
 Each command lives in its own module and is imported only when run, so ``--help`` is fast.
-User errors (bad logs, bad parameters) print one line ``odocompass: error: ...`` and exit 2.
+``main`` is the one place that turns errors into exit codes (issue 11):
+
+* the project's errors (bad logs, bad parameters, unusable outputs: ``OdoCompassError``,
+  ``ParameterError``) and the operating system's refusals (a file that cannot be read or
+  written) print one line ``odocompass: error: ...`` and exit 2;
+* anything else is a defect: one line ``odocompass: internal error: ...`` with a hint that
+  ``--debug`` shows the traceback, exit 1;
+* Ctrl-C exits 130.
+
+Common options, accepted before or after the command: ``-q/--quiet`` (no progress bars or
+information lines; warnings and errors still show), ``--debug`` (tracebacks).  Progress bars
+appear only when stderr is a terminal.
 """
 
 from __future__ import annotations
@@ -10,6 +21,37 @@ import argparse
 import sys
 
 EXIT_USAGE = 2
+EXIT_INTERNAL = 1
+
+FIT_HELP = ("comma-separated parameter keys, no spaces, e.g. P,B,T_F,a; any numeric key of the parameter "
+            "file (jaxmodel/params.py PARAMETER_TABLE) except sensor_axle and counter_modulus")
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows every default after its help text (those that mean something: not None or False)."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False, argparse.SUPPRESS) or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
+class _Parser(argparse.ArgumentParser):
+    """A usage error is one line too: ``odocompass: error: <command>: <message>``, exit 2."""
+
+    def error(self, message):
+        command = self.prog.partition(" ")[2]
+        self.exit(EXIT_USAGE, f"odocompass: error: {command + ': ' if command else ''}{' '.join(message.split())} "
+                              f"(see {self.prog} --help)\n")
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("odocompass")
+    except Exception:  # not installed (run from a checkout)
+        return "0+unknown"
 
 
 def _enable_x64():
@@ -18,96 +60,217 @@ def _enable_x64():
     jax.config.update("jax_enable_x64", True)
 
 
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
+    return value
+
+
+def _pos_int(text: str) -> int:
+    value = _nonneg_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more, got {value}")
+    return value
+
+
+def _number(lo: float | None = None, lo_open: bool = True, hi: float | None = None):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if value != value or value in (float("inf"), float("-inf")):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        if lo is not None and (value <= lo if lo_open else value < lo):
+            raise argparse.ArgumentTypeError(f"must be {'above' if lo_open else 'at least'} {lo:g}, got {value:g}")
+        if hi is not None and value > hi:
+            raise argparse.ArgumentTypeError(f"must be at most {hi:g}, got {value:g}")
+        return value
+
+    return parse
+
+
+def _common() -> argparse.ArgumentParser:
+    """-q and --debug, accepted after the command too (SUPPRESS keeps the top-level value)."""
+    c = _Parser(add_help=False)
+    c.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="no progress bars or information lines (warnings and errors still show)")
+    c.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                   help="show the Python traceback of an unexpected error")
+    return c
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="odocompass", description="Dead-reckoning heading estimation: odometer + compass.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = _Parser(
+        prog="odocompass", formatter_class=_Formatter,
+        description="Dead-reckoning heading estimation: odometer + compass (SPEC §5). Headings are degrees "
+                    "clockwise from true north in files and on the command line; drive logs are CSV, Parquet "
+                    "or MDF4 (.csv, .parquet, .mf4), chosen by extension.",
+        epilog="Exit codes: 0 success, 2 bad input or unusable output (one line on stderr), 1 internal error "
+               "(--debug shows the traceback), 130 interrupted.")
+    p.add_argument("--version", action="version", version=f"odocompass {_version()}")
+    p.add_argument("-q", "--quiet", action="store_true", default=False,
+                   help="no progress bars or information lines (warnings and errors still show)")
+    p.add_argument("--debug", action="store_true", default=False,
+                   help="show the Python traceback of an unexpected error")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    common = [_common()]
 
-    d = sub.add_parser("demo", help="simulate, estimate, identify, build and co-simulate the FMU; plots into build/demo/")
-    d.add_argument("--out-dir", default="build/demo", help="where plots and tables go (default build/demo)")
-    d.add_argument("--quick", action="store_true", help="shorter drives (for tests)")
+    def add(name, help_, description):
+        return sub.add_parser(name, help=help_, description=description, parents=common, formatter_class=_Formatter)
 
-    s = sub.add_parser("simulate", help="synthetic drive plus a truth file beside it")
-    s.add_argument("--scenario", choices=("urban", "highway", "mixed", "parking"), default="mixed")
-    s.add_argument("--duration", type=float, default=900.0, help="seconds (default 900)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True, help="drive file (.csv, .parquet or .mf4)")
-    s.add_argument("--params", help="true vehicle parameters (JSON); default: built-in defaults")
-    s.add_argument("--fixes-sigma", type=float, default=None, metavar="M",
-                   help="add 1 Hz position fixes with this sigma per axis (m)")
+    d = add("demo", "simulate, estimate, identify, build and co-simulate the FMU",
+            "The main job on an embedded default: simulates drives, estimates the heading in every mode, "
+            "identifies a vehicle's parameters, builds the estimator FMU and co-simulates it with fmpy. "
+            "Everything (plots, tables, drives, FMUs) is written under --out-dir.")
+    d.add_argument("--out-dir", default="build/demo", metavar="DIR", help="folder for every output of the demo")
+    d.add_argument("--quick", action="store_true", help="shorter drives (about 4 minutes of driving, for tests)")
+
+    s = add("simulate", "synthetic drive plus a truth file beside it",
+            "Simulates a drive of a vehicle with wheel pulse counters and a compass, and writes DRIVE plus "
+            "DRIVE-stem.truth.csv / .truth.json beside it (the truth JSON is usable as --params).")
+    s.add_argument("--scenario", choices=("urban", "highway", "mixed", "parking"), default="mixed",
+                   help="kind of drive")
+    s.add_argument("--duration", type=_number(0.0, hi=7 * 86400.0), default=900.0, metavar="S",
+                   help="drive duration, seconds")
+    s.add_argument("--seed", type=_nonneg_int, default=0, metavar="N", help="random seed (0 or more)")
+    s.add_argument("--out", required=True, metavar="DRIVE", help="drive file: .csv, .parquet or .mf4")
+    s.add_argument("--params", metavar="P.json",
+                   help="true vehicle parameters: a parameter file or a truth .json written by simulate "
+                        "(default: the built-in defaults)")
+    s.add_argument("--fixes-sigma", type=_number(0.0, lo_open=False), default=None, metavar="M",
+                   help="add 1 Hz position fixes with this sigma per axis, metres")
     s.add_argument("--fixes-model", choices=("gnss", "white"), default=None,  # simulate.FIX_MODELS (lazy import)
-                   help="fix errors: gnss = half white, half correlated over 30 s (default); white = independent")
-    s.add_argument("--dpp-mismatch", type=float, default=0.0, help="right wheel's true dpp relative excess, e.g. 0.003")
+                   help="fix errors: gnss = half white, half correlated over 30 s (used when omitted); "
+                        "white = independent; needs --fixes-sigma")
+    s.add_argument("--dpp-mismatch", type=_number(-0.5, hi=0.5), default=0.0, metavar="R",
+                   help="right wheel's true distance per pulse relative excess, e.g. 0.003 (dimensionless)")
     s.add_argument("--no-anomalies", action="store_true", help="no localized magnetic anomalies")
 
-    e = sub.add_parser("estimate", help="run the estimator on a drive log")
-    e.add_argument("drive")
-    e.add_argument("--params", help="parameter JSON (default: built-in defaults)")
-    e.add_argument("--out", required=True, help="output CSV")
-    e.add_argument("--mode", choices=("complementary", "kalman", "odometer", "compass"), default="complementary")
-    e.add_argument("--calibration", choices=("on", "off"), default="on")
-    e.add_argument("--refine-a", choices=("on", "off"), default="on")
-    e.add_argument("--track", choices=("closed_form", "table"), default="closed_form")
+    e = add("estimate", "run the estimator on a drive log",
+            "Runs the heading estimator over a drive log and writes one row per sample: time_s, heading_deg, "
+            "wheel_heading_deg, compass_heading_deg (degrees, true north), x_m, y_m (metres east/north), "
+            "speed_mps, a (s²/m²), heading_reliability, compass_valid, odometer_valid, dpp_ratio, curvature, "
+            "effective_track_m, map_used. Output formats, by the extension of --out: .csv, .parquet (or .pq) "
+            "and .mf4 (ASAM MDF4).")
+    e.add_argument("drive", metavar="DRIVE", help="drive log: .csv, .parquet or .mf4")
+    e.add_argument("--params", metavar="P.json", help="parameter file (default: the built-in defaults)")
+    e.add_argument("--out", required=True, metavar="EST",
+                   help="output table: .csv, .parquet or .mf4 (format by extension); never one of the inputs")
+    e.add_argument("--mode", choices=("complementary", "kalman", "odometer", "compass"), default="complementary",
+                   help="heading estimator")
+    e.add_argument("--calibration", choices=("on", "off"), default="on",
+                   help="continuous left/right distance-per-pulse calibration (EP 0619873)")
+    e.add_argument("--refine-a", choices=("on", "off"), default="on",
+                   help="online refinement of the velocity coefficient a (US 4,788,645 eq. 13)")
+    e.add_argument("--track", choices=("closed_form", "table"), default="closed_form",
+                   help="effective track: eq. (14) or the table look-up of claims 15-16")
 
-    i = sub.add_parser("identify", help="identify vehicle parameters by gradient descent")
-    i.add_argument("drives", nargs="+")
-    i.add_argument("--params", required=True, help="starting parameter JSON (also the prior means)")
-    i.add_argument("--out", required=True)
-    i.add_argument("--fit", default="P,B,T_F,a,T_C,D_N")
-    i.add_argument("--validate", nargs="*", default=[])
-    i.add_argument("--plots", default=None, metavar="DIR")
+    i = add("identify", "identify vehicle parameters by gradient descent",
+            "Fits vehicle parameters to reference headings (column ref_heading_deg, degrees) of logged drives "
+            "and writes them, with a report, as a parameter file usable by estimate and build-fmu. Starting "
+            "values of 0 are allowed for non-negative keys such as a.")
+    i.add_argument("drives", nargs="+", metavar="DRIVE", help="training drive logs with ref_heading_deg")
+    i.add_argument("--params", required=True, metavar="INIT.json",
+                   help="starting parameter file (also the prior means)")
+    i.add_argument("--out", required=True, metavar="FIT.json", help="fitted parameter file (JSON, with a report)")
+    i.add_argument("--fit", default="P,B,T_F,a,T_C,D_N", metavar="KEYS", help=FIT_HELP)
+    i.add_argument("--validate", nargs="*", default=[], metavar="DRIVE",
+                   help="held-out drive logs, evaluated but never fitted")
+    i.add_argument("--plots", default=None, metavar="DIR", help="folder for the report's plots (default: no plots)")
     i.add_argument("--mode", choices=("complementary", "odometer", "kalman"), default="odometer",
-                   help="estimator mode whose heading is fitted (default odometer: wheel parameters on the "
-                        "odometer heading, then D_N and other filter keys on the complementary heading)")
-    i.add_argument("--max-iter", type=int, default=400, help="cap on iterations per stage (stops earlier on convergence)")
+                   help="estimator mode whose heading is fitted (odometer: wheel parameters on the odometer "
+                        "heading, then D_N and other filter keys on the complementary heading)")
+    i.add_argument("--max-iter", type=_pos_int, default=400, metavar="N",
+                   help="cap on iterations per stage (stops earlier on convergence)")
     i.add_argument("--refine-a", choices=("on", "off"), default="on", help="online refinement of a while fitting")
     i.add_argument("--calibration", choices=("on", "off"), default="off",
-                   help="left/right dpp calibration while fitting (default off: fit the raw wheel model)")
-    i.add_argument("--increment-s", type=float, default=30.0,
-                   help="odometer heading fitted as heading changes over this many seconds (0: absolute, offset removed)")
+                   help="left/right dpp calibration while fitting (off: fit the raw wheel model)")
+    i.add_argument("--increment-s", type=_number(0.0, lo_open=False), default=30.0, metavar="S",
+                   help="odometer heading fitted as heading changes over this many seconds "
+                        "(0: absolute, offset removed)")
 
-    b = sub.add_parser("build-fmu", help="export the estimator FMU")
-    b.add_argument("--params", default=None)
-    b.add_argument("--out", default="build/OdoCompass.fmu")
-    b.add_argument("--native", action="store_true", help="Python-free C FMU (default --out build/OdoCompassNative.fmu)")
+    b = add("build-fmu", "export the estimator FMU",
+            "Exports the estimator as an FMI 2.0 co-simulation FMU with the parameters as start values.")
+    b.add_argument("--params", default=None, metavar="P.json", help="parameter file (default: built-in defaults)")
+    b.add_argument("--out", default="build/OdoCompass.fmu", metavar="FMU",
+                   help="FMU file, must end in .fmu (with --native the default is build/OdoCompassNative.fmu)")
+    b.add_argument("--native", action="store_true", help="Python-free C FMU")
 
-    m = sub.add_parser("import", help="convert a real log to the drive schema")
-    m.add_argument("kind", choices=("comma2k19", "husky"))
+    m = add("import", "convert a real log to the drive schema",
+            "Converts a comma2k19 segment or a Husky bag into a drive log plus DRIVE-stem.params.json beside "
+            "it. Sources with NaN or gaps the importer cannot bridge are refused.")
+    m.add_argument("kind", choices=("comma2k19", "husky"), help="source kind")
     m.add_argument("source", help="comma2k19 segment folder or Husky .bag file")
-    m.add_argument("--out", required=True, help="drive file; <stem>.params.json is written beside it")
+    m.add_argument("--out", required=True, metavar="DRIVE",
+                   help="drive file (.csv, .parquet or .mf4); <stem>.params.json is written beside it")
     m.add_argument("--axle", choices=("front", "rear"), default=None,
-                   help="comma2k19: wheel pair integrated into pulses (default front); Husky: rear only")
-    m.add_argument("--dpp", type=float, default=None, metavar="M",
-                   help="metres per pulse of the synthesised counters (default 0.02 comma2k19, 0.001 Husky)")
+                   help="comma2k19: wheel pair integrated into pulses (front when omitted); Husky: rear only")
+    m.add_argument("--dpp", type=_number(0.0, hi=10.0), default=None, metavar="M",
+                   help="metres per pulse of the synthesised counters (0.02 comma2k19, 0.001 Husky when omitted)")
     return p
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _os_error_line(exc: OSError) -> str:
+    where = exc.filename if exc.filename is not None else None
+    what = exc.strerror or _one_line(exc)
+    return f"{where}: {what}" if where is not None else what
+
+
+def _run(args) -> int:
+    if args.command == "demo":
+        from .demo import main as run
+    elif args.command == "simulate":
+        from .simulate import main as run
+    elif args.command == "estimate":
+        from .estimate import main as run
+    elif args.command == "identify":
+        from .identify import main as run
+    elif args.command == "build-fmu":
+        from fmu.build import main as run
+    else:
+        from .importers import main as run
+    return int(run(args) or 0)
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    _enable_x64()
-    from .errors import OdoCompassError
-    from jaxmodel.params import ParameterError
+    from . import console
 
+    console.set_quiet(args.quiet)
+    debug = bool(args.debug)
     try:
-        if args.command == "demo":
-            from .demo import main as run
-        elif args.command == "simulate":
-            from .simulate import main as run
-        elif args.command == "estimate":
-            from .estimate import main as run
-        elif args.command == "identify":
-            from .identify import main as run
-        elif args.command == "build-fmu":
-            from fmu.build import main as run
-        else:
-            from .importers import main as run
-        return int(run(args) or 0)
-    except (OdoCompassError, ParameterError) as exc:
-        print(f"odocompass: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        _enable_x64()
+        return _run(args)
     except KeyboardInterrupt:
         print("odocompass: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # the one place that maps errors to exit codes
+        from jaxmodel.params import ParameterError
 
+        from .errors import OdoCompassError
+
+        if debug:
+            import traceback
+
+            traceback.print_exc()
+        if isinstance(exc, (OdoCompassError, ParameterError)):
+            print(f"odocompass: error: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        if isinstance(exc, OSError):  # a file the system refuses to read or write: the user's to fix
+            print(f"odocompass: error: {_os_error_line(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        print(f"odocompass: internal error: {type(exc).__name__}: {_one_line(exc)[:500]}"
+              + ("" if debug else " (run again with --debug for the traceback)"), file=sys.stderr)
+        return EXIT_INTERNAL
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -8,8 +8,19 @@ The optimiser sees one flat vector ``z``, *whitened* so that the prior is N(0, I
     u = u0 + s * z            (u: unconstrained value, u0: the starting file's value, s: prior std)
     theta = g(u)              g = sigmoid for P, curvature_clip and the fractions (kept in (0, 1)),
                               exp for lengths, gains and other positive constants,
+                              c * softplus for a non-negative key (``a``, sigmas, gains) whose
+                              start value is 0 (see below),
                               identity for signed quantities (compass offsets, rotation,
                               variation, the deviation table).
+
+A start value of 0 is where users start for ``a`` (nobody measured it) and other non-negative keys
+(``jaxmodel.params.NON_NEGATIVE_KEYS``), but it is the boundary of their range: no smooth map of
+the whole line onto [0, inf) reaches 0 with a non-zero slope, so the optimiser could not leave it.
+Such a key is fitted as theta = c softplus(u) with c its table default (1 when that is 0), u0 = 0:
+the optimiser starts at c ln 2 (the table's order of magnitude), the fitted value stays
+non-negative, and approaches 0 exponentially (like exp) if the data want it there.  Its prior std
+in u is at least ``ZERO_START_PRIOR_STD`` (a start of 0 says nothing about the value).  A start
+value > 0 keeps the log transform.
 
 Whitening makes every coordinate O(1) (a metre of wheel base and 1e-4 s²/m² of ``a`` look the
 same to the optimiser), the MAP prior is simply ½|z|², and the posterior std of z *is* the ratio
@@ -106,6 +117,9 @@ PRIOR_STD: dict[str, float] = {
 DEFAULT_PRIOR_STD_LOG = 0.5
 DEFAULT_PRIOR_STD_SIGNED = 1.0
 
+ZERO_START_PRIOR_STD = 2.0
+"""Prior std (softplus units) of a non-negative key started at 0: theta within c x [0.13, 2.1] at one sigma."""
+
 DEFAULT_DECORRELATION_S = 10.0
 """Assumed decorrelation time of the heading errors: a drive of T seconds counts as T / this
 independent errors in the likelihood (standard errors scale with its square root)."""
@@ -123,6 +137,10 @@ def _from_unconstrained(key: str, transform: str, u, xp):
         return lo + (hi - lo) / (1.0 + np.exp(-u))
     if transform == "log":
         return xp.exp(u)
+    if transform == "softplus":
+        if xp is jnp:
+            return jax.nn.softplus(u)
+        return np.logaddexp(0.0, u)
     return u
 
 
@@ -144,6 +162,7 @@ class ParamSpace:
     u0: np.ndarray            # unconstrained start values (flat)
     s: np.ndarray             # prior std in unconstrained units (flat)
     labels: tuple[str, ...] = field(default=())  # one per coordinate: 'P', 'deviation_deg[3]', ...
+    scale: np.ndarray | None = None  # theta = scale x g(u) (flat; None: 1), the softplus keys' c
 
     @property
     def dim(self) -> int:
@@ -162,6 +181,8 @@ class ParamSpace:
         values = {}
         for key, tr, sl in self._segments():
             v = _from_unconstrained(key, tr, u[sl], jnp)
+            if tr == "softplus":
+                v = jnp.asarray(self._scale()[sl]) * v
             shape = np.shape(getattr(base, key))
             values[key] = v.reshape(shape) if shape else v[0]
         return base._replace(**values)
@@ -178,9 +199,14 @@ class ParamSpace:
                 out[sl] = (hi - lo) * sg * (1.0 - sg)
             elif tr == "log":
                 out[sl] = np.exp(seg)
+            elif tr == "softplus":
+                out[sl] = self._scale()[sl] / (1.0 + np.exp(-seg))
             else:
                 out[sl] = 1.0
         return out * self.s
+
+    def _scale(self) -> np.ndarray:
+        return np.ones_like(self.u0) if self.scale is None else self.scale
 
     def theta(self, z) -> np.ndarray:
         """Fitted values (flat, physical units) at z."""
@@ -188,6 +214,8 @@ class ParamSpace:
         out = np.empty_like(u)
         for key, tr, sl in self._segments():
             out[sl] = _from_unconstrained(key, tr, u[sl], np)
+            if tr == "softplus":
+                out[sl] *= self._scale()[sl]
         return out
 
 
@@ -218,10 +246,17 @@ def make_space(keys: Sequence[str], start, prior_std: Mapping[str, float] | None
     for k in prior_std:
         if k not in PARAMETER_SPECS:
             raise OdoCompassError(f"prior_std: unknown parameter key {k!r}")
-    transforms, sizes, u0, s, labels = [], [], [], [], []
+    from jaxmodel.params import NON_NEGATIVE_KEYS
+
+    transforms, sizes, u0, s, labels, scales = [], [], [], [], [], []
     for key in keys:
         tr = _transform_of(key)
         v = np.asarray(getattr(start, key), dtype=np.float64).reshape(-1)
+        c = np.ones_like(v)
+        if tr == "log" and key in NON_NEGATIVE_KEYS and np.all(v == 0.0):
+            tr = "softplus"  # the boundary start of a non-negative key (module docstring)
+            default = float(np.max(np.abs(np.asarray(PARAMETER_SPECS[key].default, dtype=np.float64))))
+            c = np.full_like(v, default if default > 0.0 else 1.0)
         if tr == "logit":
             lo, hi = LOGIT_KEYS[key]
             if not np.all((v > lo) & (v < hi)):
@@ -231,22 +266,28 @@ def make_space(keys: Sequence[str], start, prior_std: Mapping[str, float] | None
             uu = np.log(frac) - np.log1p(-frac)
         elif tr == "log":
             if not np.all(v > 0.0):
-                raise OdoCompassError(f"cannot fit {key!r} from {float(v[0])}: it is a positive parameter, give a "
-                                      f"positive start value")
+                what = "a non-negative parameter" if key in NON_NEGATIVE_KEYS else "a positive parameter"
+                raise OdoCompassError(f"cannot fit {key!r} from {float(v[0])}: it is {what}, give a "
+                                      f"{'non-negative' if key in NON_NEGATIVE_KEYS else 'positive'} start value")
             uu = np.log(v)
+        elif tr == "softplus":
+            uu = np.zeros_like(v)
         else:
             uu = v.copy()
         default = DEFAULT_PRIOR_STD_SIGNED if tr == "identity" else DEFAULT_PRIOR_STD_LOG
         sd = float(prior_std.get(key, PRIOR_STD.get(key, default)))
+        if tr == "softplus" and key not in prior_std:
+            sd = max(sd, ZERO_START_PRIOR_STD)
         if not sd > 0.0:
             raise OdoCompassError(f"prior_std of {key!r} must be positive, got {sd}")
         transforms.append(tr)
         sizes.append(v.size)
         u0.append(uu)
         s.append(np.full(v.size, sd))
+        scales.append(c)
         labels.extend([key] if v.size == 1 else [f"{key}[{j}]" for j in range(v.size)])
     return ParamSpace(tuple(keys), tuple(transforms), tuple(sizes), np.concatenate(u0), np.concatenate(s),
-                      tuple(labels))
+                      tuple(labels), np.concatenate(scales))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -155,21 +155,45 @@ class ParameterError(ValueError):
     """A parameter file or mapping is invalid; the message names the key."""
 
 
+MAX_MAGNITUDE = 1.0e12
+"""No parameter is this large in any unit the table uses: a larger value is a typo or an overflow
+(B = 1e308 would turn eq. (14) into inf).  ``counter_modulus`` may go up to 2**53 (exact in float64)."""
+MAX_COUNTER_MODULUS = 2.0**53
+MAX_VEHICLE_LENGTH_M = 50.0
+"""Wheel base and tracks above this are not a land vehicle's (and make eq. (14) meaningless)."""
+MAX_DPP_M = 10.0
+"""Distance per pulse above this is not a wheel pulse sensor's."""
+
+
 def _to_number(key: str, value: Any) -> Any:
     if key == "sensor_axle":
-        if value in ("front", 1, 1.0, True):
+        if isinstance(value, str) and value in ("front", "rear"):
+            return 1.0 if value == "front" else 0.0
+        if value in (1, 1.0, True):
             return 1.0
-        if value in ("rear", 0, 0.0, False):
+        if value in (0, 0.0, False):
             return 0.0
         raise ParameterError(f"parameter 'sensor_axle' must be 'front' or 'rear', got {value!r}")
     if key == "deviation_deg":
-        arr = np.asarray(value, dtype=np.float64)
+        if isinstance(value, (str, bytes, Mapping)):
+            raise ParameterError(f"parameter 'deviation_deg' must be a list of {DEVIATION_TABLE_SIZE} numbers, "
+                                 f"got {type(value).__name__}")
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ParameterError(f"parameter 'deviation_deg' must be a list of {DEVIATION_TABLE_SIZE} numbers, "
+                                 f"got {value!r:.80}") from None
         if arr.shape != (DEVIATION_TABLE_SIZE,):
             raise ParameterError(f"parameter 'deviation_deg' must be a list of {DEVIATION_TABLE_SIZE} numbers, got shape {arr.shape}")
         return arr
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise ParameterError(f"parameter {key!r} must be a number, got {value!r}")
-    return float(value)
+        raise ParameterError(f"parameter {key!r} must be a number, got {value!r:.80}")
+    if isinstance(value, int) and abs(value) > 2**1023:
+        raise ParameterError(f"parameter {key!r} is absurdly large ({str(value)[:20]}...)")
+    number = float(value)
+    if key == "counter_modulus" and math.isfinite(number) and number != round(number):
+        raise ParameterError(f"parameter 'counter_modulus' must be a whole number of counts, got {value!r}")
+    return number
 
 
 def make_params(values: Mapping[str, Any] | None = None, **overrides: Any) -> Params:
@@ -236,6 +260,16 @@ def validate_params(params: Params) -> None:
         problems.append(f"sensor_axle={float(val('sensor_axle'))} must be front (1) or rear (0)")
     if not 0.0 < float(val("curvature_clip")) < 1.0:
         problems.append(f"curvature_clip={float(val('curvature_clip'))} must be in (0, 1)")
+    for k in PARAMETER_KEYS:
+        v = val(k)
+        limit = MAX_COUNTER_MODULUS if k == "counter_modulus" else MAX_MAGNITUDE
+        if np.all(np.isfinite(v)) and np.any(np.abs(v) > limit):
+            problems.append(f"{k}={float(np.max(np.abs(v))):g} is absurdly large (|value| above {limit:g})")
+    for k, limit, what in (("B", MAX_VEHICLE_LENGTH_M, "m"), ("T_F", MAX_VEHICLE_LENGTH_M, "m"),
+                           ("T_R", MAX_VEHICLE_LENGTH_M, "m"), ("dpp_left", MAX_DPP_M, "m"),
+                           ("dpp_right", MAX_DPP_M, "m")):
+        if k in PARAMETER_SPECS and MAX_MAGNITUDE >= float(val(k)) > limit:
+            problems.append(f"{k}={float(val(k)):g} {what} is beyond any land vehicle (at most {limit:g} {what})")
     if problems:
         raise ParameterError("invalid parameters: " + "; ".join(problems))
 
@@ -254,38 +288,92 @@ def params_to_dict(params: Params) -> dict[str, Any]:
     return out
 
 
+def _no_duplicates(path: Path):
+    def hook(pairs):
+        seen = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise ParameterError(f"{path}: duplicate key {k!r} (a JSON object may name a key once)")
+            seen.add(k)
+        return dict(pairs)
+
+    return hook
+
+
+def _refuse_constant(path: Path):
+    def hook(name):
+        raise ParameterError(f"{path}: {name} is not a number in JSON (parameters must be finite)")
+
+    return hook
+
+
+TRUTH_FILE_KEYS = ("params", "scenario", "seed", "truth_csv")
+"""A simulator truth file (``DRIVE.truth.json``) holds the true parameters under ``params``."""
+
+
 def load_params(path: str | Path) -> tuple[Params, dict[str, Any]]:
     """Read a parameter JSON file. Returns (params, extra) where extra holds the optional ``report``.
 
-    Raises ParameterError with the file name and the offending key.
+    Accepts a flat parameter file (SPEC §3, optionally with a ``report`` object) and the truth
+    file ``simulate`` writes beside a drive (its ``params`` object).  Raises ParameterError with
+    the file name and the offending key: unreadable or non-UTF-8 file, invalid JSON, duplicate
+    keys, NaN/Infinity, unknown keys, wrong types, non-integer counter_modulus.
     """
     path = Path(path)
     try:
-        raw = json.loads(path.read_text())
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ParameterError(f"{path}: parameter file not found") from None
+    except IsADirectoryError:
+        raise ParameterError(f"{path}: is a folder, not a parameter file") from None
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot read the parameter file: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"{path}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+                             f"save the parameter file as UTF-8 JSON") from None
+    try:
+        raw = json.loads(text, object_pairs_hook=_no_duplicates(path), parse_constant=_refuse_constant(path))
     except json.JSONDecodeError as exc:
         raise ParameterError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    except RecursionError:
+        raise ParameterError(f"{path}: not valid JSON (nested too deeply)") from None
     if not isinstance(raw, dict):
         raise ParameterError(f"{path}: expected a JSON object of parameter keys")
+    if all(k in raw for k in TRUTH_FILE_KEYS) and isinstance(raw["params"], dict):
+        raw = dict(raw["params"])  # simulate's truth file: its true parameters
     extra = {"report": raw.pop("report")} if "report" in raw else {}
     try:
         params = make_params(raw)
     except ParameterError as exc:
         raise ParameterError(f"{path}: {exc}") from None
+    except (OverflowError, ValueError, TypeError) as exc:
+        raise ParameterError(f"{path}: {' '.join(str(exc).split())}") from None
     return params, extra
 
 
 def save_params(path: str | Path, params: Params, report: Mapping[str, Any] | None = None) -> None:
-    """Write a flat parameter JSON file (plus an optional ``report`` object), atomically."""
+    """Write a flat parameter JSON file (plus an optional ``report`` object), atomically: a
+    temporary file beside the target replaces it only once completely written."""
+    import os
+    import tempfile
+
     path = Path(path)
     data = params_to_dict(params)
     if report is not None:
         data["report"] = report
-    tmp = path.with_name(path.name + ".tmp")
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"  # before any file is touched
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
-    tmp.replace(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.json", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def deg(x):
