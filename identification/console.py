@@ -34,3 +34,9 @@ def progress_enabled() -> bool:
         return (not QUIET) and sys.stderr.isatty()
     except (AttributeError, ValueError):
         return False
+
+
+def status(msg: str) -> None:
+    """A 'working on ...' line before a long step, on a terminal only (logs get the summary line)."""
+    if progress_enabled():
+        print(f"odocompass: {msg} ...", file=sys.stderr, flush=True)

@@ -92,34 +92,34 @@ def skipped_counts(columns: dict[str, np.ndarray]) -> tuple[int, int]:
 
 
 def main(args) -> int:
+    """``odocompass estimate``: every check (output location, inputs, parameters) before the work;
+    the table is written atomically; warnings (diagnostics.drive_warnings) on stderr."""
     import jaxmodel
 
+    from . import console
+    from .diagnostics import checked_params, drive_warnings
+    from .outputs import atomic, check_output_file
+
     out_path = Path(args.out)
-    _format_of(out_path)  # refuse an unknown output extension before the work
     drive_path = Path(args.drive)
-    if out_path.resolve() == drive_path.resolve():
-        raise OdoCompassError(f"{out_path}: --out is the drive log itself; choose another output file")
-    if args.params:
-        params, _extra = jaxmodel.load_params(args.params)
-    else:
-        params = jaxmodel.make_params()
-    try:
-        jaxmodel.validate_params(params)
-    except jaxmodel.ParameterError as exc:
-        raise jaxmodel.ParameterError(f"{args.params or 'built-in defaults'}: {exc}") from None
+    _format_of(out_path)  # refuse an unknown output extension before the work
+    check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
+    params, _extra = checked_params(args.params)
     drive = read_drive(drive_path)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track)
+    console.status(f"estimating {drive.n_samples} samples ({drive.metadata.get('duration_s', 0.0):.0f} s) "
+                 f"of {drive_path} in mode {args.mode}")
     try:
         cols = estimate_drive(params, drive, config)
     except EstimatorBug as exc:
         print(f"odocompass: internal error: {exc}", file=sys.stderr)
         return 1
-    try:
-        write_drive(out_path, cols)
-    except OSError as exc:
-        raise OdoCompassError(f"{out_path}: cannot write: {exc.strerror or exc}") from None
+    with atomic(out_path) as tmp:
+        write_drive(tmp, cols)
+    for w in drive_warnings(drive, params, cols):
+        console.warn(w)
     n_compass, n_odometer = skipped_counts(cols)
-    print(f"odocompass: skipped {n_compass} compass samples, {n_odometer} odometer samples "
-          f"(of {drive.n_samples}); wrote {out_path}", file=sys.stderr)
+    console.info(f"skipped {n_compass} compass samples, {n_odometer} odometer samples "
+                 f"(of {drive.n_samples}); wrote {out_path}")
     return 0

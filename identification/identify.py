@@ -392,11 +392,17 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "evaluations": total_eval,
         "warnings": warnings,
     }
-    if plots_dir is not None:
+    if plots_dir is not None:  # a failed plot is reported, never the end of a finished fit
         from . import plots
 
-        report["plots"] = [str(p) for p in plots.write_all(Path(plots_dir), ev_before, ev_after, all_drives, roles,
-                                                          start, fitted, stage_reports, mode, n_train=len(train))]
+        try:
+            report["plots"] = [str(p) for p in plots.write_all(Path(plots_dir), ev_before, ev_after, all_drives,
+                                                              roles, start, fitted, stage_reports, mode,
+                                                              n_train=len(train))]
+        except Exception as exc:  # noqa: BLE001 - any plotting failure (disk, backend) is only reported
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            report["plot_error"] = f"{plots_dir}: plots not written: {text}"
+            warnings.append(report["plot_error"])
     report["wall_time_s"] = time.perf_counter() - t_start
     return fitted, report
 
@@ -411,16 +417,45 @@ def _progress(enabled: bool, total: int, desc: str):
     return bar
 
 
+def _zero_start_warnings(report, params_file) -> list[str]:
+    out = []
+    for label, row in report.get("parameters", {}).items():
+        if row.get("transform") == "softplus":
+            out.append(f"{label} starts at 0 in {params_file}, the boundary of a non-negative parameter: fitted as "
+                       f"c softplus(u) from {row['start']:.4g} (identification.loss); fitted {row['fitted']:.6g}")
+    return out
+
+
 def main(args) -> int:
-    """``odocompass identify DRIVE... --params INIT.json --out FIT.json [--fit ...] [--validate ...] [--plots DIR]``."""
+    """``odocompass identify DRIVE... --params INIT.json --out FIT.json [--fit ...] [--validate ...] [--plots DIR]``.
+
+    Outputs are checked before any work (never an input, a writable location); the start file's
+    errors name it; the drives' warnings (diagnostics) are printed before the fit and kept in the
+    report; a failed plot is reported without losing the fit."""
     import jaxmodel
 
+    from . import console
+    from .diagnostics import batch_warnings, checked_params
     from .drive_log import read_drive
+    from .outputs import check_output_dir, check_output_file
 
     t0 = time.perf_counter()
-    start, _extra = jaxmodel.load_params(args.params)
+    inputs = ([("the parameter file", args.params)] + [("the drive log", d) for d in args.drives]
+              + [("the validation drive log", d) for d in (args.validate or [])])
+    check_output_file(args.out, inputs=inputs, label="--out")
+    if args.plots:
+        check_output_dir(args.plots, inputs=inputs, label="--plots")
+    start, _extra = checked_params(args.params)
+    keys = L.parse_fit(args.fit)
+    try:
+        L.make_space(keys, start)  # a start value the parameterisation cannot take, before reading the drives
+    except OdoCompassError as exc:
+        raise OdoCompassError(f"{args.params}: {exc}") from None
     train = [read_drive(p) for p in args.drives]
     validate = [read_drive(p) for p in (args.validate or [])]
+    drive_warnings = batch_warnings(train + validate, start)
+    for w in drive_warnings:
+        console.warn(w)
     kwargs = {}
     for name in ("refine_a", "calibration"):
         v = getattr(args, name.replace("-", "_"), None)
@@ -428,18 +463,21 @@ def main(args) -> int:
             kwargs[name] = v in ("on", True)
     if getattr(args, "increment_s", None) is not None:
         kwargs["increment_s"] = float(args.increment_s)
-    fitted, report = identify(train, start, fit=args.fit, validate_drives=validate, mode=args.mode,
-                              max_iter=args.max_iter, progress=not getattr(args, "quiet", False),
+    fitted, report = identify(train, start, fit=keys, validate_drives=validate, mode=args.mode,
+                              max_iter=args.max_iter, progress=console.progress_enabled(),
                               plots_dir=args.plots, **kwargs)
     report["wall_time_s"] = time.perf_counter() - t0
     report["start_file"] = str(args.params)
+    report["warnings"] = drive_warnings + _zero_start_warnings(report, args.params) + report["warnings"]
     try:  # e.g. refine_speed_min and refine_speed_max fitted independently and crossed
         jaxmodel.validate_params(fitted)
     except jaxmodel.ParameterError as exc:
         raise OdoCompassError(f"identify: the fitted parameters are not valid, nothing written to {args.out}: {exc}") from None
     jaxmodel.save_params(args.out, fitted, report)
-    print(R.format_summary(report))
-    for w in report["warnings"]:
-        print(f"odocompass: warning: {w}", file=sys.stderr)
-    print(f"wrote {args.out}" + (f" and plots into {args.plots}" if args.plots else ""))
+    if not console.QUIET:
+        print(R.format_summary(report))
+    for w in report["warnings"][len(drive_warnings):]:
+        console.warn(w)
+    plots = f" and plots into {args.plots}" if args.plots and "plot_error" not in report else ""
+    console.info(f"wrote {args.out}{plots}")
     return 0

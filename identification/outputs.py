@@ -1,7 +1,7 @@
 """Safe outputs: every command checks where it will write *before* the work, never writes over
 one of its inputs, and writes each file atomically (issue 11).
 
-* ``check_output_file(path, inputs)`` refuses, with one line naming the path, an output that
+* ``check_output_file(path, inputs)`` (inputs: paths or (description, path) pairs) refuses, with one line naming the path, an output that
   resolves (symlinks and hard links included) to any input, a directory where a file is
   expected, a path under an existing file, and a location that cannot be written (the nearest
   existing folder is not writable).  Nothing is created: a refused command leaves no trace.
@@ -64,12 +64,21 @@ def _check_location(path: Path, label: str) -> None:
         raise OutputError(f"{path}: cannot write {label}: folder {anc} is not writable")
 
 
+def _named_inputs(inputs: Iterable) -> list[tuple[str, Path]]:
+    """Inputs given as paths or (description, path) pairs; None entries are skipped."""
+    out = []
+    for item in inputs:
+        what, inp = item if isinstance(item, tuple) else ("the input", item)
+        if inp is not None:
+            out.append((what, Path(inp)))
+    return out
+
+
 def _check_not_input(path: Path, inputs: Iterable, label: str) -> None:
-    for inp in inputs:
-        if inp is None:
-            continue
+    for what, inp in _named_inputs(inputs):
         if same_file(path, inp):
-            raise OutputError(f"{path}: {label} is the input {inp}; refusing to write over an input, "
+            shown = f"{what} itself" if str(path) == str(inp) else f"{what} {inp} (the same file)"
+            raise OutputError(f"{path}: {label} is {shown}; refusing to write over an input, "
                               f"choose another output name")
 
 
@@ -92,9 +101,9 @@ def check_output_file(path, inputs: Iterable = (), label: str = "--out", suffixe
 def check_output_dir(path, inputs: Iterable = (), label: str = "--out-dir") -> Path:
     """Check an output *folder* before the work; returns it as a Path."""
     path = Path(path)
-    for inp in inputs:
-        if inp is not None and same_file(path, inp):
-            raise OutputError(f"{path}: {label} is the input {inp}; choose another folder")
+    for what, inp in _named_inputs(inputs):
+        if same_file(path, inp):
+            raise OutputError(f"{path}: {label} is {what} {inp}; choose another folder")
     anc = _nearest_existing(path)
     if not anc.is_dir():
         raise OutputError(f"{path}: cannot write {label}: {anc} is a file, not a folder")

@@ -1,0 +1,201 @@
+"""Warnings where a result is probably wrong (issue 11), shared by ``estimate`` and ``identify``.
+
+``drive_warnings(drive, params, columns)`` looks at one drive, the parameters it was estimated
+with and the per-sample table of ``estimate_drive`` (or the same columns from a batch run) and
+returns one line per problem, each naming the drive:
+
+* **no usable compass**: every compass sample was invalid (NaN/inf or no field) — the heading is
+  the wheels' alone, with an unknown start;
+* **uncalibrated compass**: the median measured horizontal field (after X0/Y0) far from
+  ``field_magnitude`` (outside ``FIELD_RATIO``), or, with the field learned (``field_magnitude``
+  <= 0), a field magnitude that varies with heading by more than ``FIELD_SPREAD`` (hard iron not
+  removed), or a persistent disagreement of tens of degrees between the compass and the
+  reference heading (when the log has one) or the estimated heading (its mean over
+  ``WINDOW_S`` windows, DELTA less what the filter explains);
+* **counter_modulus mismatch**: counters at or above ``counter_modulus`` (they never reach it if
+  they wrap there), or counters that fall back by far more than the modulus allows (they wrap
+  elsewhere), with the time of the first;
+* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times.
+
+``checked_params(path)`` loads and validates a parameter file with every error naming the file.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+FIELD_RATIO = (0.75, 1.33)
+"""Median measured |B| / field_magnitude outside this range: the compass looks uncalibrated."""
+FIELD_SPREAD = 0.3
+"""Learned field: (max - min) / median of the per-heading median |B| above this suggests hard iron."""
+DISAGREE_DEG = 15.0
+"""A mean compass error (against the reference or the estimate) of this many degrees ..."""
+DISAGREE_FRACTION = 0.25
+"""... in at least this fraction of the windows counts as persistent."""
+WINDOW_S = 60.0
+MAX_TIMES_SHOWN = 5
+
+
+def checked_params(path, label: str = "--params"):
+    """(Params, extra) from ``path`` (validated), or the built-in defaults when ``path`` is None.
+    Every ParameterError names the file."""
+    import jaxmodel
+
+    if path is None:
+        params, extra, name = jaxmodel.make_params(), {}, "built-in defaults"
+    else:
+        params, extra = jaxmodel.load_params(path)
+        name = str(path)
+    try:
+        jaxmodel.validate_params(params)
+    except jaxmodel.ParameterError as exc:
+        raise jaxmodel.ParameterError(f"{name}: {exc}") from None
+    return params, extra
+
+
+def _times(t: np.ndarray) -> str:
+    shown = ", ".join(f"{v:.1f}" for v in t[:MAX_TIMES_SHOWN])
+    more = f" and {t.size - MAX_TIMES_SHOWN} more" if t.size > MAX_TIMES_SHOWN else ""
+    return f"t = {shown}{more} s"
+
+
+def _wrap_deg(a):
+    return (np.asarray(a, dtype=np.float64) + 180.0) % 360.0 - 180.0
+
+
+def _window_means(t: np.ndarray, err_deg: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Circular means of err_deg (degrees) over consecutive WINDOW_S windows with enough samples."""
+    if not np.any(ok):
+        return np.zeros(0)
+    idx = np.floor((t - t[0]) / WINDOW_S).astype(np.int64)
+    n = int(idx.max()) + 1
+    c = np.bincount(idx[ok], weights=np.cos(np.deg2rad(err_deg[ok])), minlength=n)
+    s = np.bincount(idx[ok], weights=np.sin(np.deg2rad(err_deg[ok])), minlength=n)
+    k = np.bincount(idx[ok], minlength=n)
+    full = k >= max(5, 0.2 * np.median(k[k > 0]))
+    return np.rad2deg(np.arctan2(s[full], c[full]))
+
+
+def _compass_warnings(name, drive, params, cols) -> list[str]:
+    out = []
+    valid = np.asarray(cols["compass_valid"]) > 0
+    n = valid.size
+    if not np.any(valid):
+        return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN, inf or no field); "
+                f"the heading comes from the wheels alone and its start is unknown"]
+    cx = np.asarray(drive.inputs.compass_x, dtype=np.float64) - float(params.X0)
+    cy = np.asarray(drive.inputs.compass_y, dtype=np.float64) - float(params.Y0)
+    mag = np.hypot(cx, cy)
+    ok = valid & np.isfinite(mag)
+    b_e = float(params.field_magnitude)
+    if np.any(ok):
+        med = float(np.median(mag[ok]))
+        if b_e > 0 and not FIELD_RATIO[0] <= med / b_e <= FIELD_RATIO[1]:
+            out.append(f"{name}: the compass looks uncalibrated: measured horizontal field {med:.4g} "
+                       f"(median) against field_magnitude {b_e:.4g} (x{med / b_e:.2f}); check the compass "
+                       f"offsets X0/Y0 and its scale, or field_magnitude")
+        elif b_e <= 0:
+            heading = np.rad2deg(np.arctan2(cy[ok], cx[ok]))
+            bins = np.floor((heading + 180.0) / 30.0).astype(np.int64) % 12
+            meds = [np.median(mag[ok][bins == b]) for b in range(12) if np.count_nonzero(bins == b) >= 20]
+            if len(meds) >= 4 and med > 0 and (max(meds) - min(meds)) / med > FIELD_SPREAD:
+                out.append(f"{name}: the compass looks uncalibrated: the measured horizontal field varies from "
+                           f"{min(meds):.4g} to {max(meds):.4g} with heading (a hard-iron offset not removed by "
+                           f"X0/Y0)")
+    t = np.asarray(cols["time_s"], dtype=np.float64)
+    comp = np.asarray(cols["compass_heading_deg"], dtype=np.float64)
+    ref = None if drive.ref_heading is None else np.rad2deg(np.asarray(drive.ref_heading, dtype=np.float64))
+    if ref is not None and np.any(np.isfinite(ref) & valid):
+        okr = valid & np.isfinite(ref)
+        err = _wrap_deg(comp - np.where(okr, ref, 0.0))
+        means = _window_means(t, err, okr)
+        bad = np.abs(means) >= DISAGREE_DEG
+        if means.size and np.mean(bad) >= DISAGREE_FRACTION:
+            mean_all = float(np.rad2deg(np.arctan2(np.mean(np.sin(np.deg2rad(err[okr]))),
+                                                   np.mean(np.cos(np.deg2rad(err[okr]))))))
+            out.append(f"{name}: the compass looks uncalibrated: it is {mean_all:+.0f} deg off the reference "
+                       f"heading on average, by {DISAGREE_DEG:g} deg or more in {np.mean(bad):.0%} of the "
+                       f"{WINDOW_S:g}-s windows")
+    elif "heading_deg" in cols:
+        est = np.asarray(cols["heading_deg"], dtype=np.float64)
+        if not np.allclose(_wrap_deg(est[valid] - comp[valid]), 0.0, atol=1e-9):  # not compass mode
+            err = _wrap_deg(comp - est)
+            means = _window_means(t, err, valid)
+            bad = np.abs(means) >= DISAGREE_DEG
+            if means.size >= 3 and np.mean(bad) >= DISAGREE_FRACTION:
+                out.append(f"{name}: the compass looks uncalibrated or disturbed: its heading departs from the "
+                           f"estimate by {DISAGREE_DEG:g} deg or more (mean DELTA over {WINDOW_S:g} s, less the "
+                           f"filter's offset) in {np.mean(bad):.0%} of the windows")
+    return out
+
+
+def _counter_warnings(name, drive, params) -> list[str]:
+    out = []
+    modulus = float(params.counter_modulus)
+    t = np.asarray(drive.inputs.time_s, dtype=np.float64)
+    for side in ("left", "right"):
+        c = np.asarray(getattr(drive.inputs, f"{side}_pulses"), dtype=np.float64)
+        fin = np.isfinite(c)
+        if not np.any(fin):
+            continue
+        over = np.flatnonzero(fin & (c >= modulus))
+        if over.size:
+            out.append(f"{name}: counter_modulus {modulus:.0f} does not match the counters: {side}_pulses reaches "
+                       f"{np.max(c[fin]):.0f} ({over.size} samples at or above the modulus, first at "
+                       f"t = {t[over[0]]:.1f} s); the counters cannot wrap at {modulus:.0f}")
+            break
+        d = np.diff(c)
+        drops = np.flatnonzero(np.isfinite(d) & (d < -0.5 * modulus))
+        if drops.size:
+            top = np.max(c[fin])
+            if top < 0.5 * modulus:  # wraps, but far below the modulus
+                out.append(f"{name}: counter_modulus {modulus:.0f} does not match the counters: {side}_pulses falls "
+                           f"from {c[drops[0]]:.0f} to {c[drops[0] + 1]:.0f} at t = {t[drops[0] + 1]:.1f} s but "
+                           f"never exceeds {top:.0f}; they seem to wrap near {top + 1:.0f}")
+                break
+    return out
+
+
+def _odometer_warnings(name, cols) -> list[str]:
+    odo = np.asarray(cols["odometer_valid"])
+    bad = np.flatnonzero(odo[1:] == 0) + 1  # the first sample only sets the counter references
+    if not bad.size:
+        return []
+    t = np.asarray(cols["time_s"], dtype=np.float64)[bad]
+    return [f"{name}: {bad.size} odometer samples dropped by the plausibility checks (implausible or non-finite "
+            f"counts) at {_times(t)}"]
+
+
+def drive_warnings(drive, params, cols: Mapping[str, np.ndarray]) -> list[str]:
+    """Warnings for one drive (see the module docstring); ``cols`` as returned by ``estimate_drive``."""
+    name = drive.path
+    return (_compass_warnings(name, drive, params, cols) + _counter_warnings(name, drive, params)
+            + _odometer_warnings(name, cols))
+
+
+def batch_warnings(drives, params, config=None) -> list[str]:
+    """``drive_warnings`` for several drives, estimated in one compiled batch (``identify``)."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    from .drive_log import stack_drives, wrap_deg
+
+    if not drives:
+        return []
+    config = jaxmodel.Config(mode="complementary") if config is None else config
+    inputs, _mask = stack_drives(list(drives))
+    out = jax.device_get(jaxmodel.run_batch(params, jax.tree_util.tree_map(jnp.asarray, inputs), config))
+    warnings = []
+    for b, d in enumerate(drives):
+        n = len(np.asarray(d.inputs.time_s))
+        cols = {"time_s": np.asarray(d.inputs.time_s, dtype=np.float64),
+                "heading_deg": wrap_deg(np.rad2deg(np.asarray(out.heading[b, :n]))),
+                "compass_heading_deg": wrap_deg(np.rad2deg(np.asarray(out.compass_heading[b, :n]))),
+                "compass_valid": np.asarray(out.compass_valid[b, :n]),
+                "odometer_valid": np.asarray(out.odometer_valid[b, :n])}
+        warnings += drive_warnings(d, params, cols)
+    return warnings
