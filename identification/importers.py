@@ -227,6 +227,30 @@ def _circular_stats_deg(diff_deg) -> dict[str, float]:
             "std_about_mean_deg": round(float(np.std(wrap_deg(d - mean))), 3)}
 
 
+MAX_GAP_S = 1.0
+"""Longest time gap the importers bridge in wheel speeds, odometry, pose or IMU (integrating a
+speed or interpolating a heading across a longer one would invent the drive)."""
+
+
+def refuse_unbridgeable(where, t, values, lo: float, hi: float, what: str, max_gap: float = MAX_GAP_S) -> None:
+    """Refuse (one line naming ``where``, the row and the time) NaN/inf in ``values`` and gaps longer
+    than ``max_gap`` seconds in ``t`` within [lo, hi], the span the import uses."""
+    t = np.asarray(t, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64).reshape(len(t), -1)
+    inside = (t >= lo) & (t <= hi)
+    bad = np.flatnonzero(inside & ~np.all(np.isfinite(v), axis=1))
+    if bad.size:
+        raise OdoCompassError(f"{where}: {bad.size} {what} samples are NaN or infinite (first at row {bad[0] + 1}, "
+                              f"t = {t[bad[0]]:.3f} s); the importer cannot bridge them")
+    ti = t[inside]
+    if ti.size >= 2:
+        gaps = np.diff(ti)
+        j = int(np.argmax(gaps))
+        if gaps[j] > max_gap:
+            raise OdoCompassError(f"{where}: {what} has a gap of {gaps[j]:.3f} s (t = {ti[j]:.3f} to {ti[j + 1]:.3f} s), "
+                                  f"longer than the {max_gap:g} s the importer bridges")
+
+
 # --- comma2k19 -----------------------------------------------------------------------------------
 
 COMMA_FILES = {
@@ -295,12 +319,15 @@ def import_comma2k19(source, *, axle: str = "front", dpp: float = COMMA_DPP,
     if not dpp > 0.0:
         raise OdoCompassError(f"--dpp must be positive, got {dpp}")
     arr = _load_comma(source)
+    lo = max(arr["wheel_t"][0], arr["pose_t"][0])
+    hi = min(arr["wheel_t"][-1], arr["pose_t"][-1])
+    refuse_unbridgeable(source / COMMA_FILES["wheel_v"], arr["wheel_t"], arr["wheel_v"], lo, hi, "wheel speed")
+    for key in ("pose_pos", "pose_vel", "pose_q"):
+        refuse_unbridgeable(source / COMMA_FILES[key], arr["pose_t"], arr[key], lo, hi, "pose")
     pose = comma_pose(arr)
 
     # Time base: magnetometer samples inside the span of wheel speeds and pose.
     t_mag = arr["mag_t"]
-    lo = max(arr["wheel_t"][0], pose["t"][0])
-    hi = min(arr["wheel_t"][-1], pose["t"][-1])
     keep = (t_mag >= lo) & (t_mag <= hi) & np.all(np.isfinite(arr["mag_v"]), axis=1)
     keep &= np.concatenate([[True], np.diff(t_mag) > 0.0])  # drop a repeated time stamp
     if keep.sum() < 2:
@@ -575,6 +602,8 @@ def import_husky(source, *, wheel_separation: float = HUSKY_WHEEL_SEPARATION, dp
     odo = odo[(odo[:, 0] >= imu[0, 0]) & (odo[:, 0] <= imu[-1, 0])]
     if len(odo) < 2:
         raise OdoCompassError(f"{source}: odometry and IMU share fewer than two samples in time")
+    refuse_unbridgeable(f"{source} ({HUSKY_TOPIC_ODOM})", odo[:, 0], odo[:, 1:3], odo[0, 0], odo[-1, 0], "odometry")
+    refuse_unbridgeable(f"{source} ({HUSKY_TOPIC_IMU})", imu[:, 0], imu[:, 1:5], odo[0, 0], odo[-1, 0], "IMU orientation")
     t, v, omega = odo[:, 0], odo[:, 1], odo[:, 2]
 
     # Skid-steer: left/right wheel speeds from the controller's v and omega (CCW positive).
@@ -747,33 +776,36 @@ def params_path_for(drive_path) -> Path:
 
 
 def main(args) -> int:
+    """``odocompass import``: outputs checked before the work (never the source), the drive and its
+    parameter file written together atomically, both checked (SPEC §4, validate_params) first."""
     from jaxmodel.params import make_params, validate_params
 
-    from .drive_log import _format_of, read_drive, write_drive
+    from . import console
+    from .drive_log import drive_from_columns, write_drive
+    from .outputs import check_drive_outputs, staged
 
-    out = Path(args.out)
-    _format_of(out)  # refuse an unknown extension before the work
+    source = Path(args.source)
+    out, ppath = check_drive_outputs(args.out, lambda p: [params_path_for(p)], inputs=[("the source", source)])
     dpp = getattr(args, "dpp", None)
+    console.status(f"importing {args.kind} {source}")
     if args.kind == "comma2k19":
-        columns, report = import_comma2k19(args.source, axle=getattr(args, "axle", None) or "front",
+        columns, report = import_comma2k19(source, axle=getattr(args, "axle", None) or "front",
                                            dpp=COMMA_DPP if dpp is None else dpp)
         params = comma2k19_params(report)
     else:
         if getattr(args, "axle", None) not in (None, "rear"):
             raise OdoCompassError("the Husky import is rear-axle only (skid steer): drop --axle or use --axle rear")
-        columns, report = import_husky(args.source, dpp=HUSKY_DPP if dpp is None else dpp)
+        columns, report = import_husky(source, dpp=HUSKY_DPP if dpp is None else dpp)
         params = husky_params(report)
-    try:
-        write_drive(out, columns)
-    except OSError as exc:
-        raise OdoCompassError(f"{out}: cannot write: {exc.strerror or exc}") from None
-    drive = read_drive(out)  # the written file must pass the SPEC §4 checks
+    drive = drive_from_columns(columns, source=str(out))  # the drive must pass the SPEC §4 checks
     flat = {k: v for k, v in params.items() if k != "report"}
     validate_params(make_params(flat))
-    ppath = params_path_for(out)
-    ppath.write_text(json.dumps(params, indent=2, allow_nan=False) + "\n")
-    print(f"odocompass: imported {args.kind} {args.source}: {drive.n_samples} samples, "
-          f"{drive.metadata['duration_s']:.1f} s; wrote {out} and {ppath}", file=sys.stderr)
+    text = json.dumps(params, indent=2, allow_nan=False) + "\n"
+    with staged([out, ppath]) as (tmp_drive, tmp_params):
+        write_drive(tmp_drive, columns)
+        tmp_params.write_text(text, encoding="utf-8")
+    console.info(f"imported {args.kind} {source}: {drive.n_samples} samples, "
+                 f"{drive.metadata['duration_s']:.1f} s; wrote {out} and {ppath}")
     return 0
 
 

@@ -54,14 +54,30 @@ def _nearest_existing(path: Path) -> Path:
     return p
 
 
+def _writable_folder(path: Path, anc: Path, label: str) -> None:
+    """``anc`` (an existing folder) accepts a new file: asked of the system, then tried with a hidden
+    probe file that is removed at once (permissions alone say nothing for root or read-only mounts)."""
+    problem = None
+    if not os.access(anc, os.W_OK | os.X_OK):
+        problem = "is not writable"
+    else:
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".odocompass-probe.", dir=anc)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            problem = f"is not writable ({exc.strerror or exc})"
+    if problem:
+        raise OutputError(f"{path}: cannot write {label}: folder {anc} {problem}")
+
+
 def _check_location(path: Path, label: str) -> None:
     """The folder that will hold ``path`` exists or can be created there, and is writable."""
     parent = _resolved(path).parent
     anc = _nearest_existing(parent)
     if not anc.is_dir():
         raise OutputError(f"{path}: cannot write {label}: {anc} is a file, not a folder")
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: cannot write {label}: folder {anc} is not writable")
+    _writable_folder(path, anc, label)
 
 
 def _named_inputs(inputs: Iterable) -> list[tuple[str, Path]]:
@@ -85,15 +101,11 @@ def _check_not_input(path: Path, inputs: Iterable, label: str) -> None:
 def check_output_file(path, inputs: Iterable = (), label: str = "--out", suffixes: Sequence[str] | None = None) -> Path:
     """Check an output *file* before the work (see the module docstring); returns it as a Path."""
     path = Path(path)
-    if str(path) in ("", "."):
-        raise OutputError(f"{label}: empty output file name")
+    _check_not_input(path, inputs, label)
+    if path.is_dir() or str(path).endswith(os.sep):
+        raise OutputError(f"{path}: {label} is a folder; give a file name")
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise OutputError(f"{path}: {label} must end in {' or '.join(suffixes)}, got {path.suffix or '(none)'!r}")
-    _check_not_input(path, inputs, label)
-    if path.is_dir():
-        raise OutputError(f"{path}: {label} is a folder; give a file name")
-    if os.path.lexists(path) and not path.exists():
-        pass  # a dangling symlink: it is replaced (never followed) by the rename
     _check_location(path, label)
     return path
 
@@ -106,10 +118,23 @@ def check_output_dir(path, inputs: Iterable = (), label: str = "--out-dir") -> P
             raise OutputError(f"{path}: {label} is {what} {inp}; choose another folder")
     anc = _nearest_existing(path)
     if not anc.is_dir():
-        raise OutputError(f"{path}: cannot write {label}: {anc} is a file, not a folder")
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: cannot write {label}: folder {anc} is not writable")
+        what = "is a file, not a folder" if anc == _resolved(path) else "is a file, not a folder, in the way"
+        raise OutputError(f"{path}: cannot write {label}: {anc} {what}")
+    _writable_folder(path, anc, label)
     return path
+
+
+def check_drive_outputs(drive, companions=None, inputs: Iterable = ()) -> list[Path]:
+    """``check_output_file`` for a drive log (known extension) and the files written beside it;
+    ``companions(drive)`` gives their paths (truth files, a parameter file).  Returns
+    [drive, *companions] as Paths."""
+    from .drive_log import _format_of
+
+    inputs = list(inputs)
+    drive = check_output_file(drive, inputs=inputs, label="--out")
+    _format_of(drive)
+    others = list(companions(drive)) if companions is not None else []
+    return [drive] + [check_output_file(p, inputs=inputs, label=f"--out's companion {Path(p).name}") for p in others]
 
 
 def temporary_beside(path) -> Path:

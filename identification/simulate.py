@@ -662,18 +662,22 @@ def main(args) -> int:
 
     if args.fixes_model is not None and args.fixes_sigma is None:
         raise OdoCompassError(f"--fixes-model {args.fixes_model} needs --fixes-sigma M (the drive has no fixes without it)")
+    from .diagnostics import checked_params  # issue 11: outputs checked before the work, parameters as estimate
+    from .outputs import check_drive_outputs, staged
+
+    outs = check_drive_outputs(args.out, truth_paths, inputs=[("the parameter file", args.params)])
     params = None
     if args.params:
-        from jaxmodel.params import load_params, params_to_dict
+        from jaxmodel.params import params_to_dict
 
-        loaded, _ = load_params(args.params)
-        params = params_to_dict(loaded)
+        params = params_to_dict(checked_params(args.params)[0])
     t0 = time.perf_counter()
     columns, truth = simulate(args.scenario, float(args.duration), int(args.seed), params=params,
                               fixes_sigma=args.fixes_sigma, dpp_mismatch=float(args.dpp_mismatch),
                               anomalies=not args.no_anomalies, fixes_model=args.fixes_model or "gnss")
-    out = write_drive(args.out, columns)
-    csv_path, json_path = write_truth(out, truth)
+    with staged(outs) as tmps:  # the drive and its truth files appear together or not at all
+        write_truth(write_drive(tmps[0], columns), truth)
+    out, csv_path, json_path = outs
     n = columns["time_s"].size
     dist = float(np.sum(np.abs(np.diff(truth["x_m"]) + 1j * np.diff(truth["y_m"]))))
     print(f"simulated {args.scenario} drive: {n} samples, {columns['time_s'][-1]:.1f} s, {dist / 1000:.2f} km, "
