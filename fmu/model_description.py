@@ -297,9 +297,14 @@ def to_xml(m: Mapping[str, Any], *, guid: str, model_identifier: str, generation
                 t_attr["displayUnit"] = v["display_unit"]
         if kind in ("Real", "Integer"):
             for a in ("min", "max"):
-                if v.get(a) is not None:
-                    t_attr[a] = exact(v[a]) if kind == "Real" else \
-                        str(math.ceil(v[a]) if a == "min" else math.floor(v[a]))
+                if v.get(a) is None:
+                    continue
+                if kind == "Real":
+                    t_attr[a] = exact(v[a])
+                else:  # fmi2Integer is 32-bit: a bound beyond it bounds nothing
+                    b = math.ceil(v[a]) if a == "min" else math.floor(v[a])
+                    if -2 ** 31 <= b <= 2 ** 31 - 1:
+                        t_attr[a] = str(b)
         if v["causality"] in ("input", "parameter"):
             t_attr["start"] = _start_text(kind, v["start"])
         SubElement(sv, kind, t_attr)

@@ -6,8 +6,9 @@ found by asking ``validate_params`` (one key changed at a time from the defaults
 as refused for that key when the message names the key):
 
 * ``finite``: NaN is refused;
-* an interval: the accepted values of a probe grid that holds the floats next to 0 and 1 give
-  exact bounds there (open or closed); other bounds are found by bisection on the float64 order;
+* an interval: the accepted values of a probe grid (the floats next to 0 and 1, and magnitudes from
+  1e-324 to 1e300) bracket each bound, which bisection on the float64 order then finds exactly
+  (open or closed);
 * an order between two keys (``refine_speed_min <= refine_speed_max``): a refusal whose message
   names a second key.
 
@@ -26,8 +27,8 @@ from typing import Any, Mapping, NamedTuple
 import numpy as np
 
 TINY = 5e-324
-GRID = (-1e300, -2.0, -1.0, -0.5, -TINY, 0.0, TINY, 0.25, 0.5, math.nextafter(1.0, 0.0), 1.0,
-        math.nextafter(1.0, 2.0), 2.0, 1e300)
+GRID = (-1e300, -1e15, -1e9, -1e3, -2.0, -1.0, -0.5, -TINY, 0.0, TINY, 0.25, 0.5, math.nextafter(1.0, 0.0), 1.0,
+        math.nextafter(1.0, 2.0), 2.0, 3.0, 10.0, 30.0, 100.0, 1e3, 1e6, 1e9, 1e15, 1e300)
 
 
 class Interval(NamedTuple):
@@ -101,26 +102,65 @@ def _from_ordered(i: int) -> float:
     return float(np.int64(np.uint64(bits).astype(np.int64)).view(np.float64))
 
 
+_ROUND = sorted({sign * k * 10.0 ** e for sign in (-1.0, 1.0) for k in range(1, 100) for e in range(-20, 21)}
+                | {0.0})
+
+
 def _boundary(refused, rejected: float, accepted: float) -> tuple[float, bool]:
-    """Bisection between a refused and an accepted value: (bound, open) with bound the last refused
-    when it is exactly one ulp off the first accepted, else the first accepted (closed)."""
-    r, a = _ordered(rejected), _ordered(accepted)
-    while abs(a - r) > 1:
-        mid = (a + r) // 2
-        if refused(_from_ordered(mid)):
+    """The bound between a refused and an accepted value: (bound, open).  Round numbers (two
+    significant digits) between them are searched first, then bisection on the float64 order."""
+    lo, hi = min(rejected, accepted), max(rejected, accepted)
+    cands = [c for c in _ROUND if lo < c < hi]
+    r, a = rejected, accepted
+    while cands:  # binary search over the round numbers
+        mid = cands[len(cands) // 2]
+        up = accepted > rejected
+        if refused(mid):  # the bound lies on the accepted side of mid
             r = mid
         else:
             a = mid
-    rv, av = _from_ordered(r), _from_ordered(a)
+        cands = [c for c in cands if (min(r, a) < c < max(r, a))]
+        del up
+    toward_a = math.inf if accepted > rejected else -math.inf
+    if math.nextafter(r, toward_a) == a:
+        pass
+    elif not refused(math.nextafter(r, toward_a)):  # an open bound at the round number r
+        return r, True
+    elif refused(math.nextafter(a, -toward_a)):  # a closed bound at the round number a
+        return a, False
+    ri, ai = _ordered(r), _ordered(a)
+    while abs(ai - ri) > 1:
+        mid = (ai + ri) // 2
+        if refused(_from_ordered(mid)):
+            ri = mid
+        else:
+            ai = mid
+    rv, av = _from_ordered(ri), _from_ordered(ai)
     for nice in (0.0, 1.0):  # (0, ...) rather than [5e-324, ...)
         if rv == nice:
             return nice, True
     return av, False
 
 
+_CACHE: dict[str, Rules] = {}
+
+
 def derive(jm=None, string_keys=("sensor_axle",), fuzz: int = 400, seed: int = 0) -> Rules:
+    """The rules of this ``jaxmodel`` (cached per process by the text of jaxmodel/params.py)."""
     if jm is None:
         import jaxmodel as jm
+    import hashlib
+    from pathlib import Path
+
+    from jaxmodel import params as P
+
+    key = hashlib.sha256(Path(P.__file__).read_bytes() + repr((string_keys, fuzz, seed)).encode()).hexdigest()
+    if key not in _CACHE:
+        _CACHE[key] = _derive(jm, string_keys, fuzz, seed)
+    return _CACHE[key]
+
+
+def _derive(jm, string_keys, fuzz, seed) -> Rules:
     probe = _Probe(jm)
     keys = [s.key for s in jm.PARAMETER_TABLE if s.key not in string_keys]
     finite, intervals, orders = [], [], []

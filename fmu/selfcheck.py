@@ -115,6 +115,17 @@ def _state_vector(slave: Slave, blob: bytes) -> list:
     return [float(x).hex() for x in s]
 
 
+def _json_state(blob: bytes):
+    """True for a JSON state with every estimator float as float.hex (pythonfmu FMU), None for a
+    binary one (native FMU)."""
+    try:
+        decoded = json.loads(blob.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return None
+    return isinstance(decoded, dict) and all(
+        isinstance(x, str) and (x.startswith(("0x", "-0x")) or x in ("nan", "inf", "-inf")) for x in decoded["s"])
+
+
 def check_save_restore(fmu: str, params=None) -> dict[str, Any]:
     d = _drive(700)
     r = _Run(fmu, "a", d, params)
@@ -145,6 +156,7 @@ def check_save_restore(fmu: str, params=None) -> dict[str, Any]:
         "deserialized_bit_identical": _same_bits(first, other),
         "state_bytes": len(blob),
         "state_size": len(vec),
+        "state_is_json_with_hex_floats": _json_state(bytes(blob)),
     }
 
 

@@ -77,11 +77,14 @@ def test_fmpy_simulate_fmu_on_the_example_input(fmus, tmp_path):
     assert len(ref_file) == len(inp)
     out = run_py(SIMULATE_FMU, fmus["estimator"], in_csv, tmp_path / "sim.npz")
     t = inp["time"]
-    assert out["end"] == pytest.approx(float(t[-1]))
+    assert out["end"] == pytest.approx(float(t[-1]), abs=1e-9)
     res = np.load(tmp_path / "sim.npz")
-    # expected: the initialization sample (row 0 at t0), then row k-1's values stamped t_k
+    assert len(res["time"]) == len(t)  # no extra steps: the rows never fall between communication points
+    # expected: the initialization sample (row 0 at t0), then row k-1's values stamped t_k (the rows
+    # are stamped 1e-11 s before their communication point, fmu/make_examples.py)
     idx = np.concatenate([[0], np.arange(len(t) - 1)])
-    samples = jaxmodel.make_inputs(t, inp["left_pulses"][idx].astype(float), inp["right_pulses"][idx].astype(float),
+    samples = jaxmodel.make_inputs(res["time"], inp["left_pulses"][idx].astype(float),
+                                   inp["right_pulses"][idx].astype(float),
                                    inp["compass_x"][idx], inp["compass_y"][idx])
     want = jaxmodel.run(custom_params(), samples)
     assert len(res["time"]) == len(t)

@@ -287,3 +287,93 @@ def test_pythonfmu_fmu_processes_exit_normally():
                               env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=300)
         codes.append(proc.returncode)
     assert codes == [0] * 10, codes
+
+
+# ----------------------------------------------------------------------------------------------
+# a C++ host: libcosim (the Open Simulation Platform's master, pip package libcosimpy)
+# ----------------------------------------------------------------------------------------------
+LIBCOSIM = """
+import json, sys
+import numpy as np
+from fmpy import read_model_description
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+from libcosimpy.CosimManipulator import CosimManipulator
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimSlave import CosimLocalSlave
+
+log_output_level(CosimLogLevel.ERROR)
+fmu, drive, out = sys.argv[1], sys.argv[2], sys.argv[3]
+data = np.load(drive)
+vr = {v.name: v.valueReference for v in read_model_description(fmu).modelVariables}
+ex = CosimExecution.from_step_size(step_size=100_000_000)  # 0.1 s in ns, one sample per step
+idx = ex.add_local_slave(CosimLocalSlave(fmu_path=fmu, instance_name="odocompass"))
+obs = CosimObserver.create_last_value()
+ex.add_observer(obs)
+man = CosimManipulator.create_override()
+ex.add_manipulator(man)
+ints, reals = ("left_pulses", "right_pulses"), ("compass_x", "compass_y")
+for n in ints:
+    ex.integer_initial_value(idx, vr[n], int(data[n][0]))
+for n in reals:
+    ex.real_initial_value(idx, vr[n], float(data[n][0]))
+heading = []
+for k in range(1, len(data["time_s"])):
+    man.slave_integer_values(idx, [vr[n] for n in ints], [int(data[n][k]) for n in ints])
+    man.slave_real_values(idx, [vr[n] for n in reals], [float(data[n][k]) for n in reals])
+    assert ex.step(), f"libcosim step {k} failed"
+    heading.append(obs.last_real_values(idx, [vr["heading"]])[0])
+np.save(out, np.asarray(heading))
+print(json.dumps({"steps": len(heading), "end_time": ex.status().current_time * 1e-9}))
+"""
+
+
+def test_libcosim_runs_both_fmus_and_matches_odocompass_estimate(native, tmp_path):
+    pytest.importorskip("libcosimpy", reason="libcosimpy (pip) is not installed")
+    import jaxmodel
+    from identification.drive_log import drive_from_columns
+    from identification.estimate import estimate_drive
+    from identification.simulate import simulate
+
+    cols, _ = simulate("urban", 40.0, 3, params=jaxmodel.params_to_dict(custom_params()))
+    n = len(cols["time_s"])
+    cols = dict(cols, time_s=0.1 * np.arange(n))  # the master's fixed 0.1 s grid: sample k at k * 0.1 s
+    drive = drive_from_columns(cols, source="libcosim")
+    path = tmp_path / "drive.npz"
+    np.savez(path, **{f: np.asarray(getattr(drive.inputs, f)) for f in drive.inputs._fields})
+    est = np.deg2rad(np.asarray(estimate_drive(custom_params(), drive)["heading_deg"], dtype=np.float64))
+    for name, fmu in (("native", native), ("pythonfmu", built_fmus()["estimator"])):
+        out = run_py(LIBCOSIM, fmu, path, tmp_path / f"{name}.npy")
+        assert out["steps"] == n - 1 and out["end_time"] == pytest.approx(0.1 * (n - 1)), (name, out)
+        got = np.load(tmp_path / f"{name}.npy")
+        worst = float(np.max(np.abs(wrap(got - est[1:]))))
+        assert worst <= 1e-9, f"{name} in libcosim: heading differs from odocompass estimate by {worst:.3g} rad"
+
+
+# ----------------------------------------------------------------------------------------------
+# the examples are a reference: no aliased rows; the checker's own input sampling gives the reference
+# ----------------------------------------------------------------------------------------------
+def test_example_reference_matches_a_fresh_fmu_under_the_checkers_sampling(tmp_path):
+    from fmpy.util import read_csv
+
+    from fmu.make_examples import OUTPUTS, ROW_LEAD_S, checker_replay
+    from fmu.native_fmu import build_native_fmu
+
+    examples = REPO / "fmu" / "examples"
+    inp = read_csv(str(examples / "OdoCompass_in.csv"))
+    ref = read_csv(str(examples / "OdoCompass_ref.csv"))
+    t = np.asarray(inp["time"])
+    assert t[0] == 0.0 and np.allclose(t[1:], 0.1 * np.arange(1, len(t)) - ROW_LEAD_S, rtol=0, atol=1e-12)
+    fmu = build_native_fmu(tmp_path / "OdoCompassNative.fmu", configs=[])  # default parameters
+    got = checker_replay(fmu, examples / "OdoCompass_in.csv", float(ref["time"][-1]))
+    assert len(got["time"]) == len(ref)
+    assert np.allclose(got["time"], ref["time"], rtol=0, atol=1e-9)
+    for name in OUTPUTS:
+        a, b = np.asarray(got[name]), np.asarray(ref[name])
+        err = np.abs(wrap(a - b)) if name in ("heading", "wheel_heading", "compass_heading") else \
+            np.abs(a - b) / np.maximum(1.0, np.abs(b))
+        assert float(np.max(err)) <= 1e-9, f"OdoCompass_ref.csv is stale or aliased: {name} differs by {np.max(err):.3g}"
+    # counters sampled as a real sensor: no repeated count while the reference says the car moves
+    left = np.asarray(inp["left_pulses"], dtype=float)
+    fast = np.asarray(ref["speed"])[2:] > 1.0  # speed at t_{k+1} comes from row k
+    assert not np.any((np.diff(left)[:len(fast)] == 0) & fast)
