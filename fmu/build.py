@@ -366,14 +366,33 @@ def build_vehicle(out: str | Path = "build/VehicleSensors.fmu", params=None) -> 
 
 
 def main(args) -> int:
-    """``odocompass build-fmu [--params P.json] [--out build/OdoCompass.fmu] [--native]``."""
-    if getattr(args, "native", False):
-        from .native_fmu import build_native_fmu
+    """``odocompass build-fmu [--params P.json] [--out build/OdoCompass.fmu] [--native]``.
 
-        out = build_native_fmu("build/OdoCompassNative.fmu" if args.out == "build/OdoCompass.fmu" else args.out,
-                               args.params)
-    else:
-        out = build_estimator(args.out, args.params)
+    The output is checked before the build (a .fmu name, never the parameter file, a writable
+    folder) and written atomically: built under a temporary name beside it, renamed on success."""
+    import os
+
+    from identification.diagnostics import checked_params
+    from identification.outputs import atomic, check_output_file
+
+    native = getattr(args, "native", False)
+    out = Path("build/OdoCompassNative.fmu" if native and args.out == "build/OdoCompass.fmu" else args.out)
+    check_output_file(out, inputs=[("the parameter file", args.params)], suffixes=(".fmu",))
+    checked_params(args.params)  # its errors name the file, before the build
+    with atomic(out) as tmp:
+        try:
+            if native:
+                from .native_fmu import build_native_fmu
+
+                built = build_native_fmu(tmp, args.params)
+            else:
+                built = build_estimator(tmp, args.params)
+            if Path(built).resolve() != tmp.resolve():
+                os.replace(built, tmp)
+        finally:
+            part = tmp.with_name(tmp.name + ".part.fmu")  # pythonfmu's own partial file, if a build failed
+            if part.exists():
+                part.unlink()
     from fmpy import read_model_description
 
     md = read_model_description(str(out))

@@ -8,7 +8,10 @@
 3. builds the estimator FMU into build/ with the identified parameters and co-simulates it with
    the vehicle FMU in fmpy, plotting estimated against true heading.
 
-Everything lands in ``--out-dir`` (default build/demo/).
+Everything lands in ``--out-dir`` (default build/demo/), the FMUs included (``--out-dir``/fmu/);
+the folder is checked before any work.  The identification table shows the same figures as the
+plot legend (absolute RMSE of the odometer-only heading) and, beside them, the RMSE with each
+drive's constant offset removed.
 """
 
 from __future__ import annotations
@@ -102,17 +105,22 @@ def identify_vehicle(out_dir: Path, minutes: float):
     _say(f"\n2. Identification: a vehicle whose P, B, T_F, a differ from the starting file; "
          f"{len(train)} training drives, {len(validate)} validation drive")
     t0 = time.perf_counter()
+    from .console import progress_enabled
+
     fitted, report = identify(train, jm.make_params(nominal), fit=("P", "B", "T_F", "a"), validate_drives=validate,
-                              mode="odometer", progress=sys.stderr.isatty(), plots_dir=out_dir / "identification")
+                              mode="odometer", progress=progress_enabled(), plots_dir=out_dir / "identification")
     wall = time.perf_counter() - t0
     fitted_d = jm.params_to_dict(fitted)
     _say(f"   {'parameter':10s} {'start':>12s} {'fitted':>12s} {'true':>12s}")
     for k in ("P", "B", "T_F", "a"):
         _say(f"   {k:10s} {nominal[k]:12.6g} {fitted_d[k]:12.6g} {true[k]:12.6g}")
-    _say(f"   {'drive':38s} {'RMSE before':>12s} {'RMSE after':>12s}   (odometer-only heading drift, deg)")
+    _say("   odometer-only heading error against the reference, RMSE in deg (absolute: as in the plot legend; "
+         "offset removed: each drive's constant start error taken out)")
+    _say(f"   {'drive':38s} {'before':>9s} {'after':>9s}   {'offset removed: before':>22s} {'after':>9s}")
     for row in report.get("drives", []):
-        _say(f"   {row['role'] + ': ' + row['name']:38s} {row['odometer_rmse_offset_removed_before_deg']:12.2f} "
-             f"{row['odometer_rmse_offset_removed_after_deg']:12.2f}")
+        _say(f"   {row['role'] + ': ' + row['name']:38s} {row['odometer_rmse_before_deg']:9.2f} "
+             f"{row['odometer_rmse_after_deg']:9.2f}   {row['odometer_rmse_offset_removed_before_deg']:22.2f} "
+             f"{row['odometer_rmse_offset_removed_after_deg']:9.2f}")
     for w in report.get("warnings", []):
         _say(f"   warning: {w}")
     _say(f"   identify took {wall:.1f} s; report and plots in {out_dir / 'identification'}")
@@ -124,11 +132,12 @@ def cosimulate(out_dir: Path, params_path: Path, true_params: dict, stop_time: f
     from fmu.build import build_estimator
     from fmu.cosim import demo_cosimulation
 
-    fmu_path = build_estimator(Path("build") / "OdoCompass.fmu", params_path)
+    fmu_dir = out_dir / "fmu"  # under --out-dir, like everything the demo writes
+    fmu_path = build_estimator(fmu_dir / "OdoCompass.fmu", params_path)
     _say(f"\n3. FMU: built {fmu_path} with the identified parameters; co-simulating it with a vehicle FMU "
          f"of the same (true) vehicle in fmpy ({stop_time:.0f} s) and through an SSP file")
     summary = demo_cosimulation(out_dir / "cosim", estimator_fmu=fmu_path, stop_time=stop_time,
-                                fmu_dir=Path("build"), true_params=true_params)
+                                fmu_dir=fmu_dir, true_params=true_params)
     _say(f"   fmpy master: ended at {summary['end_time']:.1f} s, heading RMSE {summary['rmse_deg']:.2f}° "
          f"against the vehicle's true heading")
     if "ssp_path" in summary:
@@ -139,7 +148,9 @@ def cosimulate(out_dir: Path, params_path: Path, true_params: dict, stop_time: f
 
 
 def main(args) -> int:
-    out_dir = Path(args.out_dir)
+    from .outputs import check_output_dir, write_text
+
+    out_dir = check_output_dir(args.out_dir, label="--out-dir")  # before any work
     out_dir.mkdir(parents=True, exist_ok=True)
     quick = bool(getattr(args, "quick", False))
     t0 = time.perf_counter()
@@ -148,7 +159,7 @@ def main(args) -> int:
     cosim = cosimulate(out_dir, params_path, true_params, stop_time=120.0 if quick else 300.0)
     summary = dict(heading_rmse_deg=rmse, identified_params=str(params_path),
                    cosimulation=cosim)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    write_text(out_dir / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
     _say(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; outputs in {out_dir}/")
     return 0
 

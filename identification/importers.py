@@ -804,6 +804,15 @@ def main(args) -> int:
     with staged([out, ppath]) as (tmp_drive, tmp_params):
         write_drive(tmp_drive, columns)
         tmp_params.write_text(text, encoding="utf-8")
+    measured, expected = report.get("horizontal_field_mean_uT"), report.get("geomagnetic_field_wmm2015", {})
+    if measured and expected.get("horizontal_uT"):
+        from .diagnostics import FIELD_RATIO
+
+        ratio = measured / expected["horizontal_uT"]
+        if not FIELD_RATIO[0] <= ratio <= FIELD_RATIO[1]:
+            console.warn(f"{source}: the magnetometer looks uncalibrated: measured horizontal field {measured:.1f} uT "
+                         f"(mean) against {expected['horizontal_uT']:.1f} uT expected there (WMM, x{ratio:.2f}); "
+                         f"headings from this compass will be off")
     console.info(f"imported {args.kind} {source}: {drive.n_samples} samples, "
                  f"{drive.metadata['duration_s']:.1f} s; wrote {out} and {ppath}")
     return 0
