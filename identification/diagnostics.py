@@ -7,14 +7,13 @@ returns one line per problem, each naming the drive:
 * **no usable compass**: every compass sample was invalid (NaN/inf or no field) — the heading is
   the wheels' alone, with an unknown start;
 * **uncalibrated compass**: the median measured horizontal field (after X0/Y0) far from
-  ``field_magnitude`` (outside ``FIELD_RATIO``), or, with the field learned (``field_magnitude``
-  <= 0), a field magnitude that varies with heading by more than ``FIELD_SPREAD`` (hard iron not
-  removed), or a persistent disagreement of tens of degrees between the compass and the
+  ``field_magnitude`` (outside ``FIELD_RATIO``), or a field magnitude that varies with heading by
+  more than ``FIELD_SPREAD`` (hard iron not removed), or a persistent disagreement of tens of degrees between the compass and the
   reference heading (when the log has one) or the estimated heading (its mean over
   ``WINDOW_S`` windows, DELTA less what the filter explains);
 * **counter_modulus mismatch**: counters at or above ``counter_modulus`` (they never reach it if
-  they wrap there), or counters that fall back by far more than the modulus allows (they wrap
-  elsewhere), with the time of the first;
+  they wrap there), or counters that fall back by more than half their range (a wrap) while never
+  coming near the modulus (they wrap elsewhere), with the time of the first;
 * **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times.
 
 ``checked_params(path)`` loads and validates a parameter file with every error naming the file.
@@ -96,7 +95,7 @@ def _compass_warnings(name, drive, params, cols) -> list[str]:
             out.append(f"{name}: the compass looks uncalibrated: measured horizontal field {med:.4g} "
                        f"(median) against field_magnitude {b_e:.4g} (x{med / b_e:.2f}); check the compass "
                        f"offsets X0/Y0 and its scale, or field_magnitude")
-        elif b_e <= 0:
+        else:
             heading = np.rad2deg(np.arctan2(cy[ok], cx[ok]))
             bins = np.floor((heading + 180.0) / 30.0).astype(np.int64) % 12
             meds = [np.median(mag[ok][bins == b]) for b in range(12) if np.count_nonzero(bins == b) >= 20]
@@ -115,9 +114,10 @@ def _compass_warnings(name, drive, params, cols) -> list[str]:
         if means.size and np.mean(bad) >= DISAGREE_FRACTION:
             mean_all = float(np.rad2deg(np.arctan2(np.mean(np.sin(np.deg2rad(err[okr]))),
                                                    np.mean(np.cos(np.deg2rad(err[okr]))))))
-            out.append(f"{name}: the compass looks uncalibrated: it is {mean_all:+.0f} deg off the reference "
-                       f"heading on average, by {DISAGREE_DEG:g} deg or more in {np.mean(bad):.0%} of the "
-                       f"{WINDOW_S:g}-s windows")
+            rms = float(np.sqrt(np.mean(err[okr] ** 2)))
+            out.append(f"{name}: the compass looks uncalibrated: it is off the reference heading by {rms:.0f} deg "
+                       f"RMS (mean {mean_all:+.0f} deg), by {DISAGREE_DEG:g} deg or more on average in "
+                       f"{np.mean(bad):.0%} of the {WINDOW_S:g}-s windows")
     elif "heading_deg" in cols:
         est = np.asarray(cols["heading_deg"], dtype=np.float64)
         if not np.allclose(_wrap_deg(est[valid] - comp[valid]), 0.0, atol=1e-9):  # not compass mode
@@ -147,9 +147,9 @@ def _counter_warnings(name, drive, params) -> list[str]:
                        f"t = {t[over[0]]:.1f} s); the counters cannot wrap at {modulus:.0f}")
             break
         d = np.diff(c)
-        drops = np.flatnonzero(np.isfinite(d) & (d < -0.5 * modulus))
+        top = np.max(c[fin])
+        drops = np.flatnonzero(np.isfinite(d) & (d < -0.5 * top))  # a wrap, not a short reverse
         if drops.size:
-            top = np.max(c[fin])
             if top < 0.5 * modulus:  # wraps, but far below the modulus
                 out.append(f"{name}: counter_modulus {modulus:.0f} does not match the counters: {side}_pulses falls "
                            f"from {c[drops[0]]:.0f} to {c[drops[0] + 1]:.0f} at t = {t[drops[0] + 1]:.1f} s but "

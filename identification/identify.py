@@ -417,6 +417,17 @@ def _progress(enabled: bool, total: int, desc: str):
     return bar
 
 
+def _json_safe(value):
+    """The report with NaN/inf (a drive without compass or reference has no RMSE) as null: strict JSON."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        return None
+    return value
+
+
 def _zero_start_warnings(report, params_file) -> list[str]:
     out = []
     for label, row in report.get("parameters", {}).items():
@@ -473,7 +484,7 @@ def main(args) -> int:
         jaxmodel.validate_params(fitted)
     except jaxmodel.ParameterError as exc:
         raise OdoCompassError(f"identify: the fitted parameters are not valid, nothing written to {args.out}: {exc}") from None
-    jaxmodel.save_params(args.out, fitted, report)
+    jaxmodel.save_params(args.out, fitted, _json_safe(report))
     if not console.QUIET:
         print(R.format_summary(report))
     for w in report["warnings"][len(drive_warnings):]:

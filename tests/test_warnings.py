@@ -1,0 +1,107 @@
+"""Issue 11: warnings where the result is probably wrong, on stderr (estimate) and in the identify
+report: no usable compass, an uncalibrated compass, a counter_modulus that does not match the
+counters, odometer samples dropped by the plausibility checks (with their times); identify keeps
+a finished fit when a plot fails."""
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxmodel as jm
+from identification import cli
+from identification.diagnostics import batch_warnings
+from identification.drive_log import drive_from_columns, write_drive
+from identification.simulate import simulate
+
+
+@pytest.fixture(scope="module")
+def base():
+    cols, truth = simulate("urban", 120.0, seed=5, anomalies=False)
+    return cols, truth
+
+
+def _warnings(cols, params: dict, tmp_path, capsys, name="d.csv"):
+    drive, pfile, est = tmp_path / name, tmp_path / "p.json", tmp_path / "est.csv"
+    write_drive(drive, cols)
+    pfile.write_text(json.dumps(params))
+    before = drive.read_bytes()
+    assert cli.main(["estimate", str(drive), "--params", str(pfile), "--out", str(est)]) == 0
+    assert drive.read_bytes() == before
+    err = capsys.readouterr().err
+    return [line for line in err.splitlines() if line.startswith("odocompass: warning: ")], err
+
+
+def test_clean_drive_has_no_warning(base, tmp_path, capsys):
+    cols, truth = base
+    warnings, err = _warnings(dict(cols), dict(truth["params"]), tmp_path, capsys)
+    assert warnings == [], err
+
+
+def test_no_usable_compass(base, tmp_path, capsys):
+    cols = dict(base[0], compass_x=np.full_like(base[0]["compass_x"], np.nan))
+    warnings, _ = _warnings(cols, dict(base[1]["params"]), tmp_path, capsys)
+    assert any("no usable compass" in w and "d.csv" in w for w in warnings), warnings
+
+
+def test_uncalibrated_compass_field_magnitude_and_reference(base, tmp_path, capsys):
+    cols, truth = base
+    field = float(np.median(np.hypot(cols["compass_x"], cols["compass_y"])))
+    bad = dict(cols, compass_x=cols["compass_x"] + 0.6 * field)  # a hard-iron offset nobody removed
+    warnings, _ = _warnings(bad, dict(truth["params"], field_magnitude=field), tmp_path, capsys)
+    text = "\n".join(warnings)
+    assert "uncalibrated" in text and "varies from" in text and "off the reference" in text, text
+    assert "field_magnitude" in "\n".join(_warnings(bad, dict(truth["params"], field_magnitude=0.5 * field),
+                                                    tmp_path, capsys)[0])
+    # with the field learned (field_magnitude 0): the magnitude varying with heading gives it away
+    no_ref = {k: v for k, v in bad.items() if k != "ref_heading_deg"}
+    warnings, _ = _warnings(no_ref, dict(truth["params"], field_magnitude=0.0), tmp_path, capsys)
+    assert any("uncalibrated" in w for w in warnings), warnings
+
+
+def test_counter_modulus_mismatch_and_dropped_odometer_samples(base, tmp_path, capsys):
+    cols, truth = base
+    params = dict(truth["params"])
+    # counters that wrap at 2**12 while the file says 2**16
+    wrapped = dict(cols, left_pulses=np.mod(cols["left_pulses"], 4096), right_pulses=np.mod(cols["right_pulses"], 4096))
+    warnings, _ = _warnings(wrapped, params, tmp_path, capsys)
+    assert any("counter_modulus 65536 does not match" in w and "wrap near" in w for w in warnings), warnings
+    # one counter sample of 1e15: beyond the modulus, and dropped by the plausibility checks at its time
+    spike = dict(cols, left_pulses=np.asarray(cols["left_pulses"], dtype=np.int64).copy())
+    spike["left_pulses"][500] = 10**15
+    warnings, _ = _warnings(spike, params, tmp_path, capsys)
+    text = "\n".join(warnings)
+    assert "reaches 1000000000000000" in text, text
+    t500 = f"{cols['time_s'][500]:.1f}"
+    assert any("odometer samples dropped by the plausibility checks" in w and t500 in w for w in warnings), text
+
+
+def test_identify_report_has_the_drive_warnings_and_survives_a_failed_plot(base, tmp_path, capsys, monkeypatch):
+    cols, truth = base
+    drive = tmp_path / "nocompass.csv"
+    write_drive(drive, dict(cols, compass_y=np.full_like(cols["compass_y"], np.inf)))
+    good = tmp_path / "good.csv"
+    write_drive(good, cols)
+    init = tmp_path / "init.json"
+    init.write_text(json.dumps(dict(truth["params"], a=0.0)))
+    assert any("no usable compass" in w for w in batch_warnings([drive_from_columns(
+        dict(cols, compass_y=np.full_like(cols["compass_y"], np.inf)), source="x")], jm.make_params()))
+
+    from identification import plots
+
+    def broken(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(plots, "write_all", broken)
+    out = tmp_path / "fit.json"
+    rc = cli.main(["identify", str(good), "--params", str(init), "--out", str(out), "--fit", "T_F,a",
+                   "--validate", str(drive), "--max-iter", "8", "--plots", str(tmp_path / "plots")])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    report = json.loads(out.read_text())["report"]
+    assert "No space left" in report["plot_error"]
+    text = "\n".join(report["warnings"])
+    assert "no usable compass" in text and "nocompass.csv" in text
+    assert "a starts at 0" in text  # the zero start is allowed, and said
+    assert "plots not written" in err and "no usable compass" in err and "\r" not in err
+    assert report["parameters"]["a"]["transform"] == "softplus" and report["parameters"]["a"]["fitted"] >= 0.0
