@@ -242,7 +242,10 @@ def _run(args) -> int:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) and usage errors (2, one line): returned, not raised
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     from . import console
 
     console.set_quiet(args.quiet)
