@@ -1,6 +1,7 @@
 """``odocompass build-fmu --native``: the estimator as an FMI 2.0 co-simulation FMU without Python.
 
-The binary is ``fmu/odocompass_fmi2.c`` (the FMI 2.0 C API, hand-written, model-independent)
+The binary is ``fmu/odocompass_fmi2.c`` and ``odocompass_fmi2_state.c`` (the FMI 2.0 C API,
+hand-written, model-independent, types in ``odocompass_fmi2.h``)
 compiled with files generated here at build time:
 
 * ``odc_step_<i>.c``: init and step of configuration i, lowered by ``jaxpr_lower`` from the jaxpr
@@ -40,7 +41,7 @@ from . import param_rules
 
 HERE = Path(__file__).resolve().parent
 MODEL_IDENTIFIER = "OdoCompassNative"
-FMI_C = HERE / "odocompass_fmi2.c"
+FMI_SOURCES = (HERE / "odocompass_fmi2.c", HERE / "odocompass_fmi2_state.c", HERE / "odocompass_fmi2.h")
 C_FLAGS = ("-std=c99", "-fPIC", "-ffp-contract=off", "-fno-fast-math", "-fvisibility=hidden")
 CS_OPTIONS = dict(needsExecutionTool=False, canHandleVariableCommunicationStepSize=True, canInterpolateInputs=False,
                   maxOutputDerivativeOrder=0, canRunAsynchronuously=False, canBeInstantiatedOnlyOncePerProcess=False,
@@ -262,8 +263,9 @@ def build_native_fmu(out: str | Path = "build/OdoCompassNative.fmu", params=None
             units.append((name, "-O2" if step_prog.n_ops < 8000 else "-O0"))
         (src_dir / "odocompass_validate.c").write_text(param_rules.to_c(rules, layout))
         (src_dir / "odocompass_model.h").write_text(model_header(manifest, guid, layout, eng.layout, configs))
-        shutil.copy2(FMI_C, src_dir / FMI_C.name)
-        units += [("odocompass_validate.c", "-O2"), (FMI_C.name, "-O2")]
+        for f in FMI_SOURCES:
+            shutil.copy2(f, src_dir / f.name)
+        units += [("odocompass_validate.c", "-O2")] + [(f.name, "-O2") for f in FMI_SOURCES if f.suffix == ".c"]
 
         bin_dir = fmu_dir / "binaries" / "linux64"
         bin_dir.mkdir(parents=True)

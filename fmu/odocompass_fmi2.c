@@ -16,54 +16,16 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
-#include "odocompass_model.h"
-
-enum { PH_INSTANTIATED, PH_INIT, PH_STEPPING, PH_TERMINATED };
-#define STATE_MAGIC 0x4f444353u /* "ODCS" */
-#define MSG_LEN 4096
-
-typedef struct {
-    int phase;
-    int config;       /* index into ODC_CONFIGS once initialized */
-    int cur;          /* which of s[0], s[1] holds the state */
-    int strikes;      /* consecutive samples refused for implausible counters */
-    int discarded;
-    int outputs_valid;
-    double t_start, t_last;
-    double p[ODC_N_PARAM];
-    double s[2][ODC_N_STATE];
-    double x[ODC_N_IN];
-    double o[ODC_N_OUT];
-    int cfg_bool[ODC_N_BOOL];
-    char str[ODC_N_STR][ODC_STRLEN];
-} odc_dyn;
-
-typedef struct {
-    unsigned magic;
-    unsigned size;
-    char guid[64];
-    odc_dyn d;
-} odc_saved;
-
-typedef struct {
-    odc_dyn d;
-    fmi2CallbackFunctions cb;
-    char name[256];
-    int logging_on;
-    int category_on[ODC_N_CATEGORIES];
-    char text[MSG_LEN];
-    char msg[2 * MSG_LEN];
-} odc_inst;
+#include "odocompass_fmi2.h"
 
 /* ---------------------------------------------------------------------------------------- */
-static void *odc_alloc(const odc_inst *c, size_t n)
+void *odc_alloc(const odc_inst *c, size_t n)
 {
     if (c && c->cb.allocateMemory) return c->cb.allocateMemory(1, n);
     return calloc(1, n);
 }
 
-static void odc_free(const odc_inst *c, void *ptr)
+void odc_free(const odc_inst *c, void *ptr)
 {
     if (!ptr) return;
     if (c && c->cb.freeMemory) c->cb.freeMemory(ptr);
@@ -80,7 +42,7 @@ static int category_index(const char *category)
 
 /* fmi2OK messages need logging on and their category (or logAll) enabled; warnings and errors
  * are always reported. */
-static void odc_log(odc_inst *c, fmi2Status status, const char *category, const char *fmt, ...)
+void odc_log(odc_inst *c, fmi2Status status, const char *category, const char *fmt, ...)
 {
     va_list ap;
     if (!c->cb.logger) return;
@@ -597,163 +559,3 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
     return status;
 }
 
-fmi2Status fmi2CancelStep(fmi2Component comp)
-{
-    odc_inst *c = (odc_inst *)comp;
-    if (c) odc_log(c, fmi2Error, "logStatusError", "fmi2CancelStep: steps are never asynchronous here");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value)
-{
-    (void)comp;
-    if (s == fmi2DoStepStatus && value) { *value = fmi2OK; return fmi2OK; }
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value)
-{
-    odc_inst *c = (odc_inst *)comp;
-    if (c && s == fmi2LastSuccessfulTime && value) { *value = c->d.t_last; return fmi2OK; }
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value)
-{
-    (void)comp; (void)s; (void)value;
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value)
-{
-    (void)comp;
-    if (s == fmi2Terminated && value) { *value = fmi2False; return fmi2OK; } /* a bad sample never ends the run */
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value)
-{
-    (void)comp; (void)s; (void)value;
-    return fmi2Discard;
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                                       const fmi2Integer order[], const fmi2Real value[])
-{
-    odc_inst *c = (odc_inst *)comp;
-    (void)vr; (void)nvr; (void)order; (void)value;
-    if (c) odc_log(c, fmi2Error, "logStatusError", "fmi2SetRealInputDerivatives: canInterpolateInputs is false");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                                        const fmi2Integer order[], fmi2Real value[])
-{
-    odc_inst *c = (odc_inst *)comp;
-    (void)vr; (void)nvr; (void)order; (void)value;
-    if (c) odc_log(c, fmi2Error, "logStatusError", "fmi2GetRealOutputDerivatives: maxOutputDerivativeOrder is 0");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueReference vUnknown[], size_t nUnknown,
-                                        const fmi2ValueReference vKnown[], size_t nKnown, const fmi2Real dvKnown[],
-                                        fmi2Real dvUnknown[])
-{
-    odc_inst *c = (odc_inst *)comp;
-    (void)vUnknown; (void)nUnknown; (void)vKnown; (void)nKnown; (void)dvKnown; (void)dvUnknown;
-    if (c) odc_log(c, fmi2Error, "logStatusError", "fmi2GetDirectionalDerivative: not provided");
-    return fmi2Error;
-}
-
-/* ---------------------------------------------------------------------------------------- */
-/* FMU state: the whole dynamic part of the instance, plain data                                */
-/* ---------------------------------------------------------------------------------------- */
-fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *state)
-{
-    odc_inst *c = (odc_inst *)comp;
-    odc_saved *saved;
-    if (!c || !state) return fmi2Error;
-    saved = (odc_saved *)*state;
-    if (!saved) {
-        saved = (odc_saved *)odc_alloc(c, sizeof *saved);
-        if (!saved) {
-            odc_log(c, fmi2Error, "logStatusError", "fmi2GetFMUstate: out of memory");
-            return fmi2Error;
-        }
-    }
-    saved->magic = STATE_MAGIC;
-    saved->size = (unsigned)sizeof *saved;
-    snprintf(saved->guid, sizeof saved->guid, "%s", ODC_GUID);
-    saved->d = c->d;
-    *state = saved;
-    return fmi2OK;
-}
-
-static int state_ok(odc_inst *c, const odc_saved *saved, const char *fn)
-{
-    if (!saved || saved->magic != STATE_MAGIC || saved->size != sizeof *saved || strcmp(saved->guid, ODC_GUID) != 0 ||
-        saved->d.cur < 0 || saved->d.cur > 1 || saved->d.config >= ODC_N_CONFIGS) {
-        odc_log(c, fmi2Error, "logStatusError", "%s: not a state of this FMU", fn);
-        return 0;
-    }
-    return 1;
-}
-
-fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state)
-{
-    odc_inst *c = (odc_inst *)comp;
-    if (!c || !state_ok(c, (const odc_saved *)state, "fmi2SetFMUstate")) return fmi2Error;
-    c->d = ((const odc_saved *)state)->d;
-    return fmi2OK;
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state)
-{
-    odc_inst *c = (odc_inst *)comp;
-    if (!c || !state) return fmi2Error;
-    odc_free(c, *state);
-    *state = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate state, size_t *size)
-{
-    (void)comp; (void)state;
-    if (!size) return fmi2Error;
-    *size = sizeof(odc_saved);
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate state, fmi2Byte bytes[], size_t size)
-{
-    odc_inst *c = (odc_inst *)comp;
-    if (!c || !state_ok(c, (const odc_saved *)state, "fmi2SerializeFMUstate")) return fmi2Error;
-    if (size < sizeof(odc_saved)) {
-        odc_log(c, fmi2Error, "logStatusError", "fmi2SerializeFMUstate: buffer of %u bytes, need %u", (unsigned)size,
-                (unsigned)sizeof(odc_saved));
-        return fmi2Error;
-    }
-    memcpy(bytes, state, sizeof(odc_saved));
-    return fmi2OK;
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state)
-{
-    odc_inst *c = (odc_inst *)comp;
-    odc_saved *saved;
-    if (!c || !state) return fmi2Error;
-    if (size != sizeof(odc_saved)) {
-        odc_log(c, fmi2Error, "logStatusError", "fmi2DeSerializeFMUstate: %u bytes are not a state of this FMU",
-                (unsigned)size);
-        return fmi2Error;
-    }
-    saved = (odc_saved *)odc_alloc(c, sizeof *saved);
-    if (!saved) return fmi2Error;
-    memcpy(saved, bytes, sizeof *saved);
-    if (!state_ok(c, saved, "fmi2DeSerializeFMUstate")) {
-        odc_free(c, saved);
-        return fmi2Error;
-    }
-    *state = saved;
-    return fmi2OK;
-}

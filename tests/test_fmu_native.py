@@ -66,7 +66,8 @@ def test_native_fmu_is_valid_and_has_no_python(native):
         xml = z.read("modelDescription.xml").decode()
         lib = z.read("binaries/linux64/OdoCompassNative.so")
     assert not any(n.startswith("resources/") for n in names)  # no bundled Python
-    sources = [f"sources/{n}" for n in ("odocompass_fmi2.c", "odocompass_validate.c", "odocompass_model.h")]
+    sources = [f"sources/{n}" for n in ("odocompass_fmi2.c", "odocompass_fmi2_state.c", "odocompass_fmi2.h",
+                                        "odocompass_validate.c", "odocompass_model.h")]
     assert set(sources) <= names and len([n for n in names if n.startswith("sources/odc_step_")]) == len(TEST_CONFIGS)
     for n in names:
         if n.startswith("sources/") and n.endswith(".c"):
