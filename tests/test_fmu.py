@@ -441,3 +441,28 @@ def test_every_jaxmodel_input_and_output_has_fmu_metadata():
 
     assert [f for f in jaxmodel.Inputs._fields if f != "time_s" and f not in INPUT_META] == []
     assert [f for f in jaxmodel.Outputs._fields if f not in OUTPUT_META] == []
+
+
+NO_JAX = """
+import json, sys
+from fmu.cosim import Slave
+s = Slave(sys.argv[1], "nojax")
+s.initialize(0.0, None, {"compass_x": 20.0, "compass_y": 1.0})
+heading = s.get(["heading"])["heading"]
+s.set({"left_pulses": 10, "right_pulses": 10})
+stepped = s.step(0.0, 0.1)
+status = s.last_status
+msgs = [m for m in s.messages if m[0] != "OK"]
+s.close()
+print(json.dumps({"heading": repr(heading), "stepped": stepped, "status": status, "messages": msgs}))
+"""
+
+
+def test_pythonfmu_fmu_without_jax_is_never_ok_with_nan_outputs(fmus, tmp_path):
+    """A host without jax: the error is logged with error status and no step answers OK."""
+    fake = tmp_path / "nojax" / "jax"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError(\"No module named 'jax' (hidden by the test)\")\n")
+    out = run_py(NO_JAX, fmus["estimator"], env_extra={"PYTHONPATH": f"{fake.parent}:{REPO}"})
+    assert out["heading"] == "nan" and out["stepped"] is False and out["status"] == "DISCARD", out
+    assert any(m[0] == "ERROR" and "jax" in m[2] for m in out["messages"]), out["messages"]
