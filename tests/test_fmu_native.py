@@ -378,3 +378,27 @@ def test_example_reference_matches_a_fresh_fmu_under_the_checkers_sampling(tmp_p
     left = np.asarray(inp["left_pulses"], dtype=float)
     fast = np.asarray(ref["speed"])[2:] > 1.0  # speed at t_{k+1} comes from row k
     assert not np.any((np.diff(left)[:len(fast)] == 0) & fast)
+
+
+def test_build_fmu_native_command_line(native, monkeypatch, capsys, tmp_path):
+    """``odocompass build-fmu --native``: the native builder, default --out build/OdoCompassNative.fmu
+    (the full 32-configuration build takes minutes; the builder itself is exercised by the fixture)."""
+    import fmu.native_fmu
+    from identification.cli import main
+
+    calls = []
+
+    def fake(out, params):
+        calls.append((Path(out).name, params))
+        shutil.copy2(native, out)
+        return out
+
+    monkeypatch.setattr(fmu.native_fmu, "build_native_fmu", fake)
+    monkeypatch.chdir(tmp_path)
+    assert main(["build-fmu", "--native"]) == 0
+    assert (tmp_path / "build" / "OdoCompassNative.fmu").is_file()
+    params = tmp_path / "p.json"
+    params.write_text(json.dumps(CUSTOM))
+    assert main(["build-fmu", "--native", "--params", str(params), "--out", str(tmp_path / "N.fmu")]) == 0
+    assert [c[1] for c in calls] == [None, str(params)] and (tmp_path / "N.fmu").is_file()
+    assert "22 outputs" in capsys.readouterr().out
