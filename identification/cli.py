@@ -8,7 +8,9 @@ Each command lives in its own module and is imported only when run, so ``--help`
   written) print one line ``odocompass: error: ...`` and exit 2;
 * anything else is a defect: one line ``odocompass: internal error: ...`` with a hint that
   ``--debug`` shows the traceback, exit 1;
-* Ctrl-C exits 130.
+* Ctrl-C exits 130;
+* a fleet command returns 3 when it finished but some vehicle (or drive) ended ``error``
+  (``identification.cli_fleet``); its summary names each one and why.
 
 Common options, accepted before or after the command: ``-q/--quiet`` (no progress bars or
 information lines; warnings and errors still show), ``--debug`` (tracebacks).  Progress bars
@@ -111,7 +113,8 @@ def _parser() -> argparse.ArgumentParser:
                     "clockwise from true north in files and on the command line; drive logs are CSV, Parquet "
                     "or MDF4 (.csv, .parquet, .mf4), chosen by extension.",
         epilog="Exit codes: 0 success, 2 bad input or unusable output (one line on stderr), 1 internal error "
-               "(--debug shows the traceback), 130 interrupted.")
+               "(--debug shows the traceback), 3 a fleet command finished but some vehicle or drive ended in "
+               "error (listed in its summary), 130 interrupted.")
     p.add_argument("--version", action="version", version=f"odocompass {_version()}")
     p.add_argument("-q", "--quiet", action="store_true", default=False,
                    help="no progress bars or information lines (warnings and errors still show)")
@@ -212,6 +215,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="comma2k19: wheel pair integrated into pulses (front when omitted); Husky: rear only")
     m.add_argument("--dpp", type=_number(0.0, hi=10.0), default=None, metavar="M",
                    help="metres per pulse of the synthesised counters (0.02 comma2k19, 0.001 Husky when omitted)")
+
+    from .cli_fleet import add_parser as add_fleet  # fleet identify / fleet evaluate (identification/cli_fleet.py)
+
+    add_fleet(add, common, _Formatter, FIT_HELP, _pos_int, _number)
     return p
 
 
@@ -236,6 +243,8 @@ def _run(args) -> int:
         from .identify import main as run
     elif args.command == "build-fmu":
         from fmu.build import main as run
+    elif args.command == "fleet":
+        from .cli_fleet import main as run
     else:
         from .importers import main as run
     return int(run(args) or 0)

@@ -1,0 +1,471 @@
+"""Identification of a group of vehicles in one compiled program: ``identify`` vmapped over vehicles.
+
+``fit_group(vehicles, start, keys, options)`` fits every vehicle of the group *as* ``identify``
+would fit it alone (same stages, loss, MAP prior, L-BFGS rules, Laplace standard errors, frozen
+refit of non-identifiable keys, report), but with one program for the whole group:
+
+* the training drives are stacked (V vehicles, D drives, N samples): shorter drives are padded
+  (``drive_log.stack_drives`` rules, mask 0), N is rounded up to a length bucket
+  (``bucket_length``: at most 12.5 % padding, few distinct shapes, so a worker compiles once
+  for many groups), and a vehicle with fewer drives gets empty ones (mask 0, no data);
+* the parameters are stacked too (one Params per vehicle); each stage's objective
+  ``loss.forward_value_grad_gn`` is ``vmap``-ed over the vehicles and jitted once, with the
+  drives passed as arguments (never closed over: a closed-over batch becomes a constant that
+  takes a minute to compile);
+* ``fleet_optimize.minimize_batch`` runs one L-BFGS per vehicle (one optax state each).
+
+Derivatives are always forward mode (one ``vmap`` of ``jax.jvp`` over the fitted coordinates):
+with a handful of keys it costs about the forward pass times the number of keys, stores no
+per-step residuals (reverse mode stores the scan's carry for every sample of every drive of every
+vehicle, 85 GB at 4096 drives x 9000 samples), and yields the Gauss-Newton Hessian that the
+standard errors need.  See docs/fleet.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import loss as L
+from . import report as R
+
+EVAL_FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance",
+               "compass_heading", "compass_valid", "odometer_valid")
+
+
+@dataclass
+class VehicleData:
+    """One vehicle's checked drives (``drive_log.Drive``)."""
+
+    vehicle_id: str
+    train: list
+    validate: list = field(default_factory=list)
+
+
+@dataclass
+class FitOptions:
+    mode: str = "odometer"
+    max_iter: int = 400
+    refine_a: bool = True
+    calibration: bool = False
+    track: str = "closed_form"
+    increment_s: float = 30.0
+    gtol: float = 1e-3
+    ftol: float = 1e-7
+    decorrelation_s: float = L.DEFAULT_DECORRELATION_S
+    direction: str = "gauss-newton"     # fleet_optimize.DIRECTIONS
+    warm_increment_s: float = 5.0       # > 0: odometer stage first fitted over this increment (continuation)
+
+
+def bucket_length(n: int) -> int:
+    """n rounded up to a multiple of 2**(floor(log2 n) - 3) (at least 64): padding <= 12.5 %."""
+    n = max(int(n), 1)
+    q = 2 ** max(int(math.floor(math.log2(n))) - 3, 6)
+    return int(math.ceil(n / q) * q)
+
+
+def pad_batch(inputs, mask, ref, n: int):
+    """Extend (B, n0) arrays to (B, n) with the padding rules of ``drive_log.stack_drives``."""
+    import jaxmodel
+
+    n0 = mask.shape[-1]
+    pad = n - n0
+    if pad <= 0:
+        return inputs, mask, ref
+    out = {}
+    for k in jaxmodel.Inputs._fields:
+        v = np.asarray(getattr(inputs, k), dtype=np.float64)
+        if k == "time_s":
+            step = v[:, -1:] - v[:, -2:-1] if n0 > 1 else np.ones((v.shape[0], 1))
+            ext = v[:, -1:] + step * np.arange(1, pad + 1, dtype=np.float64)[None, :]
+        elif k in ("map_valid", "fix_valid"):
+            ext = np.zeros((v.shape[0], pad))
+        else:
+            ext = np.repeat(v[:, -1:], pad, axis=1)
+        out[k] = np.concatenate([v, ext], axis=1)
+    zeros = np.zeros((mask.shape[0], pad))
+    return jaxmodel.Inputs(**out), np.concatenate([mask, zeros], axis=1), np.concatenate([ref, zeros], axis=1)
+
+
+def stack_vehicles(groups: list[list], n: int | None = None):
+    """(inputs (V, D, N), ref (V, D, N), mask (V, D, N), counts (V,)) from V lists of drives.
+
+    D is the largest list; shorter lists are filled with copies of their first drive under mask 0.
+    N is ``bucket_length`` of the longest drive unless given."""
+    import jax
+
+    from .drive_log import stack_drives, stack_reference
+
+    V = len(groups)
+    D = max(len(g) for g in groups)
+    flat, real = [], []
+    for g in groups:
+        flat += list(g) + [g[0]] * (D - len(g))
+        real += [1.0] * len(g) + [0.0] * (D - len(g))
+    inputs, mask = stack_drives(flat)
+    ref, rmask = stack_reference(flat)
+    mask = mask * rmask * np.asarray(real)[:, None]
+    n = bucket_length(mask.shape[-1]) if n is None else n
+    inputs, mask, ref = pad_batch(inputs, mask, ref, n)
+    shape = (V, D, n)
+    inputs = jax.tree_util.tree_map(lambda a: np.asarray(a).reshape(shape), inputs)
+    return inputs, ref.reshape(shape), mask.reshape(shape), np.array([len(g) for g in groups])
+
+
+_CACHE: dict = {}
+
+
+def _stage_function(template: L.StageProblem, has_prev: bool, has_sw: bool):
+    """jit(vmap over vehicles) of loss.forward_value_grad_gn for this stage's template (cached)."""
+    import jax
+
+    sp = template.space
+    key = ("stage", sp.keys, sp.transforms, sp.u0.tobytes(), sp.s.tobytes(), sp._scale().tobytes(), template.config,
+           template.field_name, template.align, template.lag, has_prev, has_sw)
+    if key not in _CACHE:
+        def one(z, base, inputs, ref, mask, n_eff, prev, sw):
+            prob = dataclasses.replace(template, base=base, inputs=inputs, ref=ref, mask=mask, n_eff=n_eff,
+                                       prev=prev, sample_weight=sw)
+            return L.forward_value_grad_gn(prob)(z)
+
+        _CACHE[key] = jax.jit(jax.vmap(one))
+    return _CACHE[key]
+
+
+def _to_params_function(space):
+    import jax
+
+    key = ("to_params", space.keys, space.transforms, space.u0.tobytes(), space.s.tobytes(), space._scale().tobytes())
+    if key not in _CACHE:
+        _CACHE[key] = jax.jit(jax.vmap(space.to_params))
+    return _CACHE[key]
+
+
+def evaluator(config, fields=EVAL_FIELDS):
+    """jit(vmap over vehicles) of loss.batch_outputs: (stacked Params, Inputs (V, D, N)) -> fields + initialized."""
+    import jax
+
+    key = ("eval", config, tuple(fields))
+    if key not in _CACHE:
+        _CACHE[key] = jax.jit(jax.vmap(lambda p, inp: L.batch_outputs(p, inp, config, fields)))
+    return _CACHE[key]
+
+
+def stacked_params(params_list):
+    """One Params whose leaves have a leading vehicle axis."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *params_list)
+
+
+def unstack_params(stacked, v: int):
+    import jax
+
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[v], stacked)
+
+
+def _ev_dicts(out, inputs, ref, mask, counts, fields=EVAL_FIELDS):
+    """Per vehicle, the dict identify's _Evaluator returns (drives sliced to the vehicle's own)."""
+    out = [np.asarray(o) for o in out]
+    dicts = []
+    for v, c in enumerate(counts):
+        d = {k: out[i][v, :c] for i, k in enumerate(fields)}
+        d["weight"] = mask[v, :c] * (out[-1][v, :c] > 0.5)
+        d["ref"] = ref[v, :c]
+        d["time_s"] = np.asarray(inputs.time_s)[v, :c]
+        dicts.append(d)
+    return dicts
+
+
+def _stage_arrays(stage, inputs, mask, start, decorrelation_s):
+    """(n_eff (V, D), prev or None, sample weight or None) as identify computes them, per vehicle."""
+    V, D, N = mask.shape
+    t = np.asarray(inputs.time_s).reshape(V * D, N)
+    m = mask.reshape(V * D, N)
+    prev = sw = None
+    if stage.lag_m > 0:
+        import jax
+
+        flat = jax.tree_util.tree_map(lambda a: np.asarray(a).reshape(V * D, N), inputs)
+        dist = L.travelled_distance(flat, start)
+        prev = L.increment_index(dist, stage.lag_m)
+        ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
+        sw = ds.reshape(V, D, N)
+        n_eff = np.where(m.sum(-1) > 0, np.maximum(np.sum(m * ds, axis=-1) / stage.lag_m, 1.0), 0.0)
+    elif stage.lag_s > 0:
+        prev = L.increment_index(t, stage.lag_s)
+        n_eff = L.effective_counts(t, m, stage.lag_s)
+    else:
+        n_eff = L.effective_counts(t, m, decorrelation_s)
+    return n_eff.reshape(V, D), (None if prev is None else prev.reshape(V, D, N)), sw
+
+
+def fit_group(vehicles: list[VehicleData], start, keys, options: FitOptions, active=None, progress=None) -> list[dict]:
+    """Identify each vehicle of the group; returns one dict per vehicle:
+    {vehicle_id, status: 'ok'|'warning'|'error', params (JSON dict) or None, report, error}.
+
+    ``active`` (V,) bool marks padding vehicles (False: fitted along, result dropped).
+    ``progress(n)`` is called with the number of batched iterations done."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    from .fleet_optimize import minimize_batch
+    from .identify import plan_stages
+
+    t0 = time.perf_counter()
+    V = len(vehicles)
+    active = np.ones(V, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+    keys = L.parse_fit(keys)
+    inputs, ref, mask, counts = stack_vehicles([v.train for v in vehicles])
+    j_inputs = jax.tree_util.tree_map(jnp.asarray, inputs)
+    all_groups = [v.train + v.validate for v in vehicles]
+    e_inputs, e_ref, e_mask, e_counts = stack_vehicles(all_groups)
+    e_inputs_j = jax.tree_util.tree_map(jnp.asarray, e_inputs)
+    eval_mode = "kalman" if options.mode == "kalman" else "complementary"
+    eval_config = jaxmodel.Config(mode=eval_mode, refine_a=options.refine_a, calibration=options.calibration,
+                                  track=options.track)
+    ev = evaluator(eval_config)
+    start_stacked = stacked_params([start] * V)
+    ev_before = _ev_dicts(jax.device_get(ev(start_stacked, e_inputs_j)), e_inputs, e_ref, e_mask, e_counts)
+
+    current = start_stacked
+    stages = plan_stages(keys, options.mode, options.increment_s)
+    per_vehicle = [dict(param_rows={}, stage_reports=[], corr_labels=[], corr_blocks=[], warnings=[], iters=0,
+                        evals=0) for _ in range(V)]
+    failed = np.zeros(V, dtype=bool)
+    errors = [None] * V
+    for stage in stages:
+        t_stage = time.perf_counter()
+        cfg = jaxmodel.Config(mode=stage.mode, refine_a=options.refine_a, calibration=options.calibration,
+                              track=options.track)
+        space = L.make_space(stage.keys, start)
+        n_eff, prev, sw = _stage_arrays(stage, inputs, mask, start, options.decorrelation_s)
+        template = L.StageProblem(space, None, None, None, None, cfg, stage.field_name, stage.align, None, 0, None, None)
+        fn = _stage_function(template, prev is not None, sw is not None)
+        args = (current, j_inputs, jnp.asarray(ref), jnp.asarray(mask), jnp.asarray(n_eff),
+                None if prev is None else jnp.asarray(prev), None if sw is None else jnp.asarray(sw))
+
+        def fun(z, args=args, fn=fn):
+            return fn(z, *args)
+
+        act = active & ~failed
+        z0 = np.zeros((V, space.dim))
+        warm = None
+        if prev is not None and stage.lag_s > options.warm_increment_s > 0:
+            # continuation: heading changes over a few seconds first (same program, other indices), whose
+            # errors stay far below pi even with a 1 % dpp mismatch; over 30 s they can wrap, and there
+            # 1 - cos is flat: a start far from the truth would stall (measured: 1 of 8 vehicles)
+            w_stage = dataclasses.replace(stage, lag_s=options.warm_increment_s)
+            w_neff, w_prev, _ = _stage_arrays(w_stage, inputs, mask, start, options.decorrelation_s)
+            w_args = args[:4] + (jnp.asarray(w_neff), jnp.asarray(w_prev)) + args[6:]
+            warm = minimize_batch(lambda z: fn(z, *w_args), z0, active=act, max_iter=options.max_iter,
+                                  gtol=options.gtol, ftol=options.ftol, direction=options.direction,
+                                  callback=(lambda it, n: progress(1)) if progress else None)
+            z0 = np.where((act & ~warm.failed)[:, None], warm.z, 0.0)
+        res = minimize_batch(
+            fun, z0, active=act, max_iter=options.max_iter, gtol=options.gtol, ftol=options.ftol, direction=options.direction,
+            callback=(lambda it, n: progress(1)) if progress else None)
+        for v in np.flatnonzero(act & res.failed):
+            failed[v] = True
+            errors[v] = f"stage '{stage.name}': {res.reason[v]}"
+        hess = res.extra[0]
+        dz = [space.dtheta_dz(res.z[v]) for v in range(V)]
+        lap = [R.laplace(hess[v], dz[v]) for v in range(V)]
+        signal = np.diagonal(hess, axis1=1, axis2=2) - 1.0 > 1e-9  # (V, dim)
+        status = [[R.verdict(float(r), bool(s)) for r, s in zip(lap[v][1], signal[v])] for v in range(V)]
+        frozen = np.array([[s == "not identifiable" for s in status[v]] for v in range(V)])
+        refit = act & ~failed & frozen.any(axis=1) & ~frozen.all(axis=1)
+        z_final = res.z.copy()
+        z_final[act & frozen.all(axis=1)] = 0.0
+        res2 = None
+        if refit.any():  # keep them at the start value (z = 0) and re-optimise the others around that
+            z_fix = np.where(frozen, 0.0, res.z)
+            res2 = minimize_batch(
+                fun, z_fix, active=refit, frozen=frozen, max_iter=options.max_iter, gtol=options.gtol,
+                ftol=options.ftol, direction=options.direction, callback=(lambda it, n: progress(1)) if progress else None)
+            z_final[refit] = res2.z[refit]
+            for v in np.flatnonzero(refit):  # identify keeps the first fit's ratios (the verdicts), the refit's errors
+                _, _, se2, corr2 = R.laplace(res2.extra[0][v], space.dtheta_dz(res2.z[v]))
+                lap[v] = (None, lap[v][1], se2, corr2)
+        current = _to_params_function(space)(jnp.asarray(z_final), current)
+        theta0 = space.theta(np.zeros(space.dim))
+        for v in np.flatnonzero(active & ~failed):
+            pv = per_vehicle[v]
+            _, ratio, se, corr = lap[v]
+            theta = space.theta(z_final[v])
+            use2 = bool(refit[v])
+            iters = int(res.iterations[v]) + (int(res2.iterations[v]) if use2 else 0)
+            evals = int(res.evaluations[v]) + (int(res2.evaluations[v]) if use2 else 0)
+            if warm is not None:
+                iters += int(warm.iterations[v])
+                evals += int(warm.evaluations[v])
+            pv["iters"] += iters
+            pv["evals"] += evals
+            for j, label in enumerate(space.labels):
+                pv["param_rows"][label] = {
+                    "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
+                    "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
+                    "prior_std_unconstrained": float(space.s[j]),
+                    "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
+                    "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[v][j]),
+                    "status": status[v][j], "stage": stage.name,
+                }
+            pv["corr_labels"].extend(space.labels)
+            pv["corr_blocks"].append(corr)
+            conv = bool(res2.converged[v]) if use2 else bool(res.converged[v])
+            why = res2.reason[v] if use2 else res.reason[v]
+            pv["stage_reports"].append({
+                "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
+                "estimator_mode": stage.mode,
+                "loss": (f"1 - cos of the heading change error over {stage.lag_s:g} s" if stage.lag_s > 0
+                         else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
+                "effective_errors_per_drive": [float(x) for x in n_eff[v, :counts[v]]],
+                "derivatives": "forward (vmapped over the vehicles of the group)",
+                "iterations": iters, "evaluations": evals, "converged": conv, "stop_reason": why,
+                "loss_history": res.history[v], "loss_history_refit": res2.history[v] if use2 else [],
+                "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen[v])] if use2 else [],
+                "warm_start": (f"fitted first over {options.warm_increment_s:g}-s heading changes "
+                               f"({int(warm.iterations[v])} iterations)") if warm is not None else None,
+                "wall_time_s_group": time.perf_counter() - t_stage,
+            })
+            if not conv:
+                pv["warnings"].append(f"stage '{stage.name}' did not converge: {why}")
+
+    ev_after = _ev_dicts(jax.device_get(ev(current, e_inputs_j)), e_inputs, e_ref, e_mask, e_counts)
+    wall = time.perf_counter() - t0
+    results = []
+    for v, veh in enumerate(vehicles):
+        if not active[v]:
+            continue
+        if failed[v]:
+            results.append(dict(vehicle_id=veh.vehicle_id, status="error", params=None, report=None,
+                                error=errors[v]))
+            continue
+        fitted = unstack_params(current, v)
+        report = _report(veh, start, fitted, keys, options, per_vehicle[v], ev_before[v], ev_after[v], wall, V)
+        results.append(dict(vehicle_id=veh.vehicle_id, status="warning" if report["warnings"] else "ok",
+                            params=jaxmodel.params_to_dict(fitted), report=report, error=None, fitted=fitted))
+    return results
+
+
+def rmse_rows(ev_before, ev_after, drives, roles, mode) -> list[dict]:
+    """Per drive: heading RMSE (deg) before and after, of the odometer heading (also offset removed)
+    and of the filtered heading; ``rmse_*_deg`` is the fitted mode's (identify's report rows)."""
+    rows = []
+    primary = "wheel_heading" if mode == "odometer" else "heading"
+    est_name = "kalman" if mode == "kalman" else "complementary"
+    for b, (d, role) in enumerate(zip(drives, roles)):
+        t = np.asarray(d.inputs.time_s)
+        row: dict[str, Any] = {"role": role, "name": d.path, "n_samples": int(t.size),
+                               "duration_s": float(t[-1] - t[0])}
+        for tag, ev in (("before", ev_before), ("after", ev_after)):
+            w = ev["weight"][b]
+            e_odo = ev["wheel_heading"][b] - ev["ref"][b]
+            row[f"odometer_rmse_{tag}_deg"] = R.rmse_deg(e_odo, w)
+            row[f"odometer_rmse_offset_removed_{tag}_deg"] = R.rmse_deg(e_odo, w, align=True)
+            row[f"{est_name}_rmse_{tag}_deg"] = R.rmse_deg(ev["heading"][b] - ev["ref"][b], w)
+            row[f"rmse_{tag}_deg"] = R.rmse_deg(ev[primary][b] - ev["ref"][b], w)
+        rows.append(row)
+    return rows
+
+
+def _drive_warnings(veh, start, ev) -> list[str]:
+    """diagnostics.drive_warnings of each drive, from the batched run with the start parameters."""
+    from .diagnostics import drive_warnings
+    from .drive_log import wrap_deg
+
+    out = []
+    for b, d in enumerate(veh.train + veh.validate):
+        n = len(np.asarray(d.inputs.time_s))
+        cols = {"time_s": np.asarray(d.inputs.time_s, dtype=np.float64),
+                "heading_deg": wrap_deg(np.rad2deg(ev["heading"][b, :n])),
+                "compass_heading_deg": wrap_deg(np.rad2deg(ev["compass_heading"][b, :n])),
+                "compass_valid": ev["compass_valid"][b, :n], "odometer_valid": ev["odometer_valid"][b, :n]}
+        out += drive_warnings(d, start, cols)
+    return out
+
+
+def _report(veh, start, fitted, keys, options, pv, ev_before, ev_after, wall, group_size) -> dict[str, Any]:
+    """identify's report for one vehicle of the group (same keys; see identification.identify)."""
+    from jaxmodel.track import effective_track
+
+    from .identify import KEY_HINTS
+
+    n_train = len(veh.train)
+    drives = veh.train + veh.validate
+    roles = ["train"] * n_train + ["validate"] * len(veh.validate)
+    rows = rmse_rows(ev_before, ev_after, drives, roles, options.mode)
+    warnings = list(pv["warnings"])
+    w_train = ev_after["weight"][:n_train] > 0
+    moving = w_train & (ev_after["speed"][:n_train] > 0.5)
+    curv = np.abs(ev_after["curvature"][:n_train][moving])
+    cmax = float(np.percentile(curv, 99.5)) if curv.size else 0.0
+    speed = ev_after["speed"][:n_train][moving]
+    vmax = float(np.percentile(speed, 99.5)) if speed.size else 0.0
+    refinements = int(np.sum(np.abs(np.diff(ev_after["a"][:n_train], axis=-1)) > 0))
+    dmax = float(np.max(ev_after["distance"][:n_train], initial=0.0))
+    params = pv["param_rows"]
+    done = set()
+    for label, row in params.items():
+        if row["status"] != "not identifiable":
+            continue
+        key = label.split("[")[0]
+        if "[" in label:
+            if key in done:
+                continue
+            done.add(key)
+            entries = [lb for lb in params if lb.split("[")[0] == key]
+            bad = [lb for lb in entries if params[lb]["status"] == "not identifiable"]
+            warnings.append(f"{key}: {len(bad)} of {len(entries)} entries are not identifiable from these drives; "
+                            f"kept at their starting values")
+            continue
+        why = "the loss does not depend on it with these drives and settings" if not row["data_signal"] else \
+            f"posterior std = {row['posterior_to_prior_std']:.2f} x prior std"
+        hint = KEY_HINTS.get(key, "").format(cmax=cmax, vmax=vmax, refinements=refinements, dmax=dmax)
+        warnings.append(f"{label} is not identifiable from these drives ({why}); kept at the starting value "
+                        f"{row['start']:.6g}" + (f". {hint}" if hint else ""))
+    labels = pv["corr_labels"]
+    full = np.full((len(labels), len(labels)), np.nan)
+    i0 = 0
+    for block in pv["corr_blocks"]:
+        n = block.shape[0]
+        full[i0:i0 + n, i0:i0 + n] = block
+        i0 += n
+    for a_, b_, c_ in R.correlated_pairs(labels, np.nan_to_num(full)):
+        warnings.append(f"{a_} and {b_} are {abs(c_):.3f} {'correlated' if c_ > 0 else 'anti-correlated'}: "
+                        f"the drives identify a combination of them, not each one")
+    c_grid = [0.0, 0.05, 0.1, 0.15, 0.2]
+
+    def te(p):
+        if float(p.sensor_axle) < 0.5:
+            return [float(p.T_R)] * len(c_grid)
+        return [float(x) for x in np.asarray(effective_track(np.asarray(c_grid), p.P, p.B, p.T_F, p.curvature_clip))]
+
+    return {
+        "fit": list(keys), "mode": options.mode,
+        "rmse_heading": "odometer-only heading" if options.mode == "odometer" else f"{options.mode} heading",
+        "config": {"refine_a": bool(options.refine_a), "calibration": bool(options.calibration), "track": options.track},
+        "optimizer": (("Gauss-Newton directions (forward-mode GN Hessian)" if options.direction == "gauss-newton"
+                       else "optax.scale_by_lbfgs (memory 10, one state per vehicle)")
+                      + " + backtracking Armijo line search, whitened unconstrained coordinates, MAP prior "
+                        "N(start, prior_std); vehicles batched with vmap (identification.fleet_optimize)"),
+        "convergence": {"gtol": options.gtol, "ftol": options.ftol, "max_iter": options.max_iter},
+        "decorrelation_s": options.decorrelation_s, "increment_s": options.increment_s,
+        "parameters": params,
+        "correlation": {"parameters": labels,
+                        "matrix": [[None if not math.isfinite(x) else round(float(x), 6) for x in r] for r in full],
+                        "note": "null: stages are fitted one after the other; cross-stage correlations are not estimated"},
+        "effective_track": {"curvature": c_grid, "before_m": te(start), "after_m": te(fitted)},
+        "drives": rows, "stages": pv["stage_reports"], "iterations": pv["iters"], "evaluations": pv["evals"],
+        "drive_warnings": _drive_warnings(veh, start, ev_before),
+        "warnings": warnings,
+        "group": {"vehicles": int(group_size), "wall_time_s": wall},
+    }
