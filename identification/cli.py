@@ -177,7 +177,7 @@ def _parser() -> argparse.ArgumentParser:
             "Fits vehicle parameters to reference headings (column ref_heading_deg, degrees) of logged drives "
             "and writes them, with a report, as a parameter file usable by estimate and build-fmu. Starting "
             "values of 0 are allowed for non-negative keys such as a.")
-    i.add_argument("drives", nargs="+", metavar="DRIVE", help="training drive logs with ref_heading_deg")
+    i.add_argument("drives", nargs="+", metavar="DRIVE", help="training drive logs with ref_heading_deg or fixes")
     i.add_argument("--params", required=True, metavar="INIT.json",
                    help="starting parameter file (also the prior means)")
     i.add_argument("--out", required=True, metavar="FIT.json", help="fitted parameter file (JSON, with a report)")
@@ -196,6 +196,10 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--increment-s", type=_number(0.0, lo_open=False), default=30.0, metavar="S",
                    help="odometer heading fitted as heading changes over this many seconds "
                         "(0: absolute, offset removed)")
+    i.add_argument("--reference", choices=("heading", "fixes", "auto"), default="auto",
+                   help="what the drives are fitted against: ref_heading_deg, the position fixes (fix_east_m, "
+                        "fix_north_m, fix_valid: course of 10 s chords of the track), or auto (ref_heading_deg "
+                        "when every training drive has it, else the fixes)")
 
     b = add("build-fmu", "export the estimator FMU",
             "Exports the estimator as an FMI 2.0 co-simulation FMU with the parameters as start values.")

@@ -35,11 +35,15 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from . import fixes_loss as FX
 from . import loss as L
 from . import report as R
+from .compass_fit import COMPASS_KEYS, deviation_harmonics
 from .errors import OdoCompassError
+from .identify_eval import Evaluator, drive_name, rmse_rows, stack
 
 MODES = ("odometer", "complementary", "kalman")
+REFERENCES = ("heading", "fixes", "auto")
 FORWARD_MAX_DIM = 24
 """Up to this many fitted coordinates, derivatives come from forward mode (one vmap of jvp,
 cheaper than reverse mode here, see bench/bench_grad.py); beyond it, reverse mode with a
@@ -93,94 +97,134 @@ def _as_params(p):
     raise OdoCompassError(f"expected Params, a dict or a parameter file, got {type(p).__name__}")
 
 
-def _drive_name(d) -> str:
-    return str(d.metadata.get("path", "<columns>")) if getattr(d, "metadata", None) else "<columns>"
+_drive_name = drive_name
+
+
+def _has_ref(d) -> bool:
+    return d.ref_heading is not None and bool(np.any(np.isfinite(d.ref_heading)))
+
+
+def resolve_reference(reference: str, train, validate) -> str:
+    """'heading' or 'fixes' from ``reference`` ('auto': the reference heading when every training
+    drive has one, else the fixes); a drive lacking what the choice needs is refused by name."""
+    if reference not in REFERENCES:
+        raise OdoCompassError(f"--reference: unknown reference {reference!r}; expected one of {', '.join(REFERENCES)}")
+    if reference == "auto":
+        reference = "heading" if all(_has_ref(d) for d in train) else "fixes"
+        for d in train + validate:
+            if not _has_ref(d) and not FX.has_fixes(d):
+                raise OdoCompassError(f"{_drive_name(d)}: neither a reference heading (column 'ref_heading_deg') "
+                                      f"nor position fixes (columns 'fix_east_m', 'fix_north_m', 'fix_valid'): "
+                                      f"identification needs one of them")
+    for d in train + validate:
+        if reference == "heading" and not _has_ref(d):
+            raise OdoCompassError(f"{_drive_name(d)}: no reference heading (column 'ref_heading_deg'), which "
+                                  f"--reference heading needs (use --reference fixes with position fixes)")
+        if reference == "fixes" and not FX.has_fixes(d):
+            n = int(np.count_nonzero(np.asarray(d.inputs.fix_valid) > 0.5))
+            raise OdoCompassError(f"{_drive_name(d)}: {n} valid position fix{'es' if n != 1 else ''} (columns "
+                                  f"'fix_east_m', 'fix_north_m', 'fix_valid'); --reference fixes needs at least 2"
+                                  + ("" if _has_ref(d) else " (and the log has no 'ref_heading_deg' either)"))
+    return reference
 
 
 def plan_stages(keys: Sequence[str], mode: str, increment_s: float, increment_m: float = 0.0) -> list[Stage]:
+    """Stages of mode ``odometer``: wheel keys on the odometer heading, compass keys (compass_fit)
+    on the compass heading, the other filter keys on the complementary heading; other modes: one."""
     if mode == "odometer":
         wheel = tuple(k for k in keys if k not in L.FILTER_KEYS)
-        filt = tuple(k for k in keys if k in L.FILTER_KEYS)
+        comp = tuple(k for k in keys if k in COMPASS_KEYS)
+        filt = tuple(k for k in keys if k in L.FILTER_KEYS and k not in COMPASS_KEYS)
         stages = []
         if wheel:
             stages.append(Stage("wheel", wheel, "wheel_heading", "odometer", increment_s,
                                 align=increment_s <= 0 and increment_m <= 0, lag_m=increment_m))
+        if comp:
+            stages.append(Stage("compass", comp, "heading", "compass", 0.0))
         if filt:
             stages.append(Stage("filter", filt, "heading", "complementary", 0.0))
         return stages
     return [Stage(mode, tuple(keys), "heading", mode, 0.0)]
 
 
-def _stack(drives):
+def _heading_problem(stage, space, base, inputs, ref, mask, cfg, start, decorrelation_s):
+    """The stage problem against the reference heading (loss.py) and its loss's description."""
     import jax.numpy as jnp
-    import jax
 
-    from .drive_log import stack_drives, stack_reference
-
-    inputs, mask = stack_drives(drives)
-    ref, rmask = stack_reference(drives)
-    return jax.tree_util.tree_map(jnp.asarray, inputs), np.asarray(ref), np.asarray(mask * rmask)
-
-
-class _Evaluator:
-    """One compiled forward pass over every drive (train + validation) for RMSEs and plots."""
-
-    FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance")
-
-    def __init__(self, drives, config):
-        import jax
-
-        self.inputs, self.ref, self.mask = _stack(drives)
-        self.config = config
-        self._fn = jax.jit(lambda p: L.batch_outputs(p, self.inputs, self.config, self.FIELDS))
-
-    def __call__(self, params) -> dict[str, np.ndarray]:
-        import jax
-
-        out = jax.device_get(self._fn(params))
-        d = {k: np.asarray(v) for k, v in zip(self.FIELDS, out)}
-        d["weight"] = self.mask * (np.asarray(out[-1]) > 0.5)
-        d["ref"] = self.ref
-        d["time_s"] = np.asarray(self.inputs.time_s)
-        return d
+    prev = sample_weight = None
+    if stage.lag_m > 0:  # heading changes over a travelled distance, each sample weighted by its distance
+        dist = L.travelled_distance(inputs, start)
+        prev = L.increment_index(dist, stage.lag_m)
+        ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
+        sample_weight = jnp.asarray(ds)
+        n_eff = np.where(mask.sum(-1) > 0, np.maximum(np.sum(mask * ds, axis=-1) / stage.lag_m, 1.0), 0.0)
+        text = f"1 - cos of the heading change error over {stage.lag_m:g} m travelled"
+    elif stage.lag_s > 0:  # heading changes over a time span (per drive, robust to jitter and dropped samples)
+        prev = L.increment_index(np.asarray(inputs.time_s), stage.lag_s)
+        n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, stage.lag_s)
+        text = f"1 - cos of the heading change error over {stage.lag_s:g} s"
+    else:
+        n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, decorrelation_s)
+        text = "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")
+    problem = L.StageProblem(space, base, inputs, jnp.asarray(ref), jnp.asarray(mask), cfg, stage.field_name,
+                             stage.align, n_eff, 0, prev, sample_weight)
+    return problem, text
 
 
-def _rmse_rows(ev_before, ev_after, drives, roles, mode) -> list[dict]:
-    rows = []
-    primary = "wheel_heading" if mode == "odometer" else "heading"
-    for b, (d, role) in enumerate(zip(drives, roles)):
-        n = len(np.asarray(d.inputs.time_s))
-        row: dict[str, Any] = {"role": role, "name": _drive_name(d), "n_samples": n,
-                               "duration_s": float(np.asarray(d.inputs.time_s)[-1] - np.asarray(d.inputs.time_s)[0])}
-        for tag, ev in (("before", ev_before), ("after", ev_after)):
-            w = ev["weight"][b]
-            e_odo = ev["wheel_heading"][b] - ev["ref"][b]
-            e_est = ev["heading"][b] - ev["ref"][b]
-            row[f"odometer_rmse_{tag}_deg"] = R.rmse_deg(e_odo, w)
-            row[f"odometer_rmse_offset_removed_{tag}_deg"] = R.rmse_deg(e_odo, w, align=True)
-            est_name = "kalman" if mode == "kalman" else "complementary"
-            row[f"{est_name}_rmse_{tag}_deg"] = R.rmse_deg(e_est, w)
-            row[f"rmse_{tag}_deg"] = R.rmse_deg(ev[primary][b] - ev["ref"][b], w)
-        rows.append(row)
-    return rows
+def _fixes_problem(stage, space, base, inputs, sample_mask, cfg, settings):
+    """The stage problem against the fixes (fixes_loss.py) and its loss's description."""
+    absolute = stage.field_name != "wheel_heading"
+    inc = stage.lag_s if stage.lag_s > 0 else 0.0
+    problem = FX.build_problem(space, base, inputs, sample_mask, cfg, absolute=absolute, increment_s=inc,
+                               settings=settings, align=stage.align)
+    what = (f"the change over {inc:g} s of" if problem.prev is not None
+            else "the per-drive offset-removed" if problem.align else "the absolute")
+    text = (f"1 - cos of {what} course error of {settings.window_s:g} s chords of the {stage.mode} track "
+            f"against the fixes (weights 1/(2 sigma_f^2/|d|^2 + sigma_h^2))")
+    return problem, text
+
+
+def _fit_stage(fun, gn, space, use_forward, max_iter, gtol, ftol, tick):
+    """Optimise one stage; parameters reported not identifiable are held at their start and the
+    others re-optimised.  Returns (first result, final result, ratio, se, corr, signal, status, frozen)."""
+    import jax.numpy as jnp
+
+    from .optimize import minimize
+
+    res = minimize(fun, np.zeros(space.dim), max_iter=max_iter, gtol=gtol, ftol=ftol, callback=tick)
+    hess = np.asarray(res.extra[0]) if use_forward else np.asarray(gn(jnp.asarray(res.z))[2])
+    _, ratio, se, corr = R.laplace(hess, space.dtheta_dz(res.z))
+    signal = np.diag(hess) - 1.0 > 1e-9
+    status = [R.verdict(float(r), bool(s)) for r, s in zip(ratio, signal)]
+    frozen = np.array([s == "not identifiable" for s in status])
+    res_final = res
+    if frozen.any() and not frozen.all():
+        # keep them at the start value (z = 0) and re-optimise the others around that
+        z_fix = np.where(frozen, 0.0, res.z)
+        res_final = minimize(fun, z_fix, max_iter=max_iter, gtol=gtol, ftol=ftol, callback=tick, frozen=frozen)
+        hess = np.asarray(res_final.extra[0]) if use_forward else np.asarray(gn(jnp.asarray(res_final.z))[2])
+        _, _ratio_f, se, corr = R.laplace(hess, space.dtheta_dz(res_final.z))
+    elif frozen.all():
+        res_final.z = np.zeros_like(res.z)
+    return res, res_final, ratio, se, corr, signal, status, frozen
 
 
 def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), mode: str = "odometer",
              max_iter: int = 400, progress: bool = True, *, config=None, refine_a: bool = True,
              calibration: bool = False, track: str = "closed_form", prior_std: Mapping[str, float] | None = None,
              decorrelation_s: float = L.DEFAULT_DECORRELATION_S, increment_s: float = DEFAULT_INCREMENT_S,
-             increment_m: float = 0.0,
+             increment_m: float = 0.0, reference: str = "auto", fix_settings: FX.FixSettings | None = None,
              gtol: float = 1e-3, ftol: float = 1e-7, derivatives: str = "auto", plots_dir=None):
     """Identify ``fit`` from ``train_drives``; returns (fitted Params, report dict).  See the module docstring.
 
     ``config`` (a jaxmodel.Config) overrides refine_a/calibration/track; its mode is ignored
-    (``mode`` decides).  ``derivatives``: 'forward', 'reverse' or 'auto'.
+    (``mode`` decides).  ``derivatives``: 'forward', 'reverse' or 'auto'.  ``reference``:
+    'heading' (``ref_heading_deg``), 'fixes' (position fixes, ``fixes_loss``) or 'auto'.
     """
     import jax
     import jax.numpy as jnp
 
     import jaxmodel
-    from jaxmodel.track import effective_track
 
     t_start = time.perf_counter()
     if not jax.config.jax_enable_x64:
@@ -200,19 +244,18 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         raise OdoCompassError("identify needs at least one training drive")
     start = _as_params(init_params)
     jaxmodel.validate_params(start)
-    for d in train + validate:
-        if d.ref_heading is None or not np.any(np.isfinite(d.ref_heading)):
-            raise OdoCompassError(f"{_drive_name(d)}: no reference heading (column 'ref_heading_deg'), "
-                                  f"which identification needs")
+    requested_reference = reference
+    reference = resolve_reference(reference, train, validate)
+    fix_settings = fix_settings or FX.FixSettings()
 
-    inputs, ref, mask = _stack(train)
+    inputs, ref, sample_mask, mask = stack(train)
     stages = plan_stages(keys, mode, increment_s, increment_m)
     warnings: list[str] = []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
     eval_config = jaxmodel.Config(mode=eval_mode, refine_a=refine_a, calibration=calibration, track=track)
     all_drives = train + validate
     roles = ["train"] * len(train) + ["validate"] * len(validate)
-    evaluator = _Evaluator(all_drives, eval_config)
+    evaluator = Evaluator(all_drives, eval_config, fixes=any(FX.has_fixes(d) for d in all_drives))
     ev_before = evaluator(start)
 
     current = start
@@ -221,35 +264,18 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     corr_labels: list[str] = []
     corr_blocks = []
     total_iter = total_eval = 0
-    for si, stage in enumerate(stages):
+    for stage in stages:
         t_stage = time.perf_counter()
         cfg = jaxmodel.Config(mode=stage.mode, refine_a=refine_a, calibration=calibration, track=track)
-        space = L.make_space(stage.keys, start, prior_std)
-        prev = sample_weight = None
-        if stage.lag_m > 0:  # heading changes over a travelled distance, each sample weighted by its distance
-            lag = 0
-            dist = L.travelled_distance(inputs, start)
-            prev = L.increment_index(dist, stage.lag_m)
-            ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
-            sample_weight = jnp.asarray(ds)
-            n_eff = np.where(mask.sum(-1) > 0, np.maximum(np.sum(mask * ds, axis=-1) / stage.lag_m, 1.0), 0.0)
-        elif stage.lag_s > 0:  # heading changes over a time span (per drive, robust to jitter and dropped samples)
-            lag = 0
-            prev = L.increment_index(np.asarray(inputs.time_s), stage.lag_s)
-            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, stage.lag_s)
+        space = L.make_space(stage.keys, start, prior_std, all_keys=keys)
+        if reference == "fixes":
+            problem, loss_text = _fixes_problem(stage, space, current, inputs, sample_mask, cfg, fix_settings)
         else:
-            lag = 0
-            n_eff = L.effective_counts(np.asarray(inputs.time_s), mask, decorrelation_s)
-        problem = L.StageProblem(space, current, inputs, jnp.asarray(ref), jnp.asarray(mask), cfg,
-                                 stage.field_name, stage.align, n_eff, lag, prev, sample_weight)
+            problem, loss_text = _heading_problem(stage, space, current, inputs, ref, mask, cfg, start,
+                                                  decorrelation_s)
         use_forward = derivatives == "forward" or (derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
         gn = L.forward_value_grad_gn(problem)
-        if use_forward:
-            fun = gn
-        else:
-            vg = L.reverse_value_grad(problem, checkpoint=True)
-            fun = vg
-
+        fun = gn if use_forward else L.reverse_value_grad(problem, checkpoint=True)
         bar = _progress(progress, max_iter, f"identify [{stage.name}] {','.join(stage.keys)}")
 
         def tick(it, value, gmax, bar=bar):
@@ -257,27 +283,9 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                 bar.update(1)
                 bar.set_postfix_str(f"loss={value:.6g} |grad|={gmax:.2g}")
 
-        from .optimize import minimize
-
-        z0 = np.zeros(space.dim)
         try:
-            res = minimize(fun, z0, max_iter=max_iter, gtol=gtol, ftol=ftol, callback=tick)
-            hess = np.asarray(res.extra[0]) if use_forward else np.asarray(gn(jnp.asarray(res.z))[2])
-            _, ratio, se, corr = R.laplace(hess, space.dtheta_dz(res.z))
-            signal = np.diag(hess) - 1.0 > 1e-9
-            status = [R.verdict(float(r), bool(s)) for r, s in zip(ratio, signal)]
-            frozen = np.array([s == "not identifiable" for s in status])
-            res_final = res
-            if frozen.any() and not frozen.all():
-                # keep them at the start value (z = 0) and re-optimise the others around that
-                z_fix = np.where(frozen, 0.0, res.z)
-                res_final = minimize(fun, z_fix, max_iter=max_iter, gtol=gtol, ftol=ftol, callback=tick,
-                                     frozen=frozen)
-                hess = np.asarray(res_final.extra[0]) if use_forward else np.asarray(gn(jnp.asarray(res_final.z))[2])
-                _, ratio_f, se, corr = R.laplace(hess, space.dtheta_dz(res_final.z))
-            elif frozen.all():
-                res_final = res
-                res_final.z = np.zeros_like(res.z)
+            res, res_final, ratio, se, corr, signal, status, frozen = _fit_stage(
+                fun, gn, space, use_forward, max_iter, gtol, ftol, tick)
         finally:
             if bar is not None:
                 bar.total = bar.n
@@ -296,7 +304,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                 "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
                 "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
                 "prior_std_unconstrained": float(space.s[j]),
-                "transform": space.transforms[[k for k in space.keys].index(label.split("[")[0])],
+                "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
                 "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[j]),
                 "status": status[j], "stage": stage.name,
             }
@@ -304,10 +312,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         corr_blocks.append(corr)
         stage_reports.append({
             "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
-            "estimator_mode": stage.mode,
-            "loss": (f"1 - cos of the heading change error over {stage.lag_m:g} m travelled" if stage.lag_m > 0
-                     else f"1 - cos of the heading change error over {stage.lag_s:g} s" if stage.lag_s > 0
-                     else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
+            "estimator_mode": stage.mode, "reference": reference, "loss": loss_text,
             "effective_errors_per_drive": [float(x) for x in problem.n_eff],
             "derivatives": "forward" if use_forward else "reverse (checkpointed)",
             "iterations": iters, "evaluations": evals, "converged": bool(res_final.converged),
@@ -321,59 +326,18 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
 
     fitted = current
     ev_after = evaluator(fitted)
-    rows = _rmse_rows(ev_before, ev_after, all_drives, roles, mode)
-
-    # context for the identifiability warnings
-    w_train = ev_after["weight"][: len(train)] > 0
-    moving = w_train & (ev_after["speed"][: len(train)] > 0.5)
-    curv = np.abs(ev_after["curvature"][: len(train)][moving])
-    cmax = float(np.percentile(curv, 99.5)) if curv.size else 0.0  # robust: isolated windows at a standstill
-    speed = ev_after["speed"][: len(train)][moving]
-    vmax = float(np.percentile(speed, 99.5)) if speed.size else 0.0
-    a_tr = ev_after["a"][: len(train)]
-    refinements = int(np.sum(np.abs(np.diff(a_tr, axis=-1)) > 0))
-    dmax = float(np.max(ev_after["distance"][: len(train)], initial=0.0))
-    vector_done = set()
-    for label, row in param_rows.items():
-        if row["status"] != "not identifiable":
-            continue
-        key = label.split("[")[0]
-        if "[" in label:  # one line per vector key (the deviation table)
-            if key in vector_done:
-                continue
-            vector_done.add(key)
-            entries = [lb for lb, r in param_rows.items() if lb.split("[")[0] == key]
-            bad = [lb for lb in entries if param_rows[lb]["status"] == "not identifiable"]
-            idx = ", ".join(lb[len(key) + 1:-1] for lb in bad)
-            warnings.append(f"{key}: {len(bad)} of {len(entries)} entries are not identifiable from these drives "
-                            f"(posterior std >= {R.NOT_IDENTIFIABLE_RATIO} x prior std): [{idx}]; kept at their "
-                            f"starting values")
-            continue
-        why = "the loss does not depend on it with these drives and settings" if not row["data_signal"] else \
-            f"posterior std = {row['posterior_to_prior_std']:.2f} x prior std"
-        hint = KEY_HINTS.get(key, "").format(cmax=cmax, vmax=vmax, refinements=refinements, dmax=dmax)
-        warnings.append(f"{label} is not identifiable from these drives ({why}); kept at the starting value "
-                        f"{row['start']:.6g}" + (f". {hint}" if hint else ""))
-    full_corr = np.full((len(corr_labels), len(corr_labels)), np.nan)
-    i0 = 0
-    for block in corr_blocks:
-        n = block.shape[0]
-        full_corr[i0:i0 + n, i0:i0 + n] = block
-        i0 += n
+    rows = rmse_rows(ev_before, ev_after, all_drives, roles, mode, evaluator)
+    warnings += R.identifiability_warnings(param_rows, R.identifiability_context(ev_after, len(train)), KEY_HINTS)
+    full_corr = R.block_correlation(corr_labels, corr_blocks)
     for a_, b_, c_ in R.correlated_pairs(corr_labels, np.nan_to_num(full_corr)):
         warnings.append(f"{a_} and {b_} are {abs(c_):.3f} {'correlated' if c_ > 0 else 'anti-correlated'}: "
                         f"the drives identify a combination of them, not each one")
 
-    c_grid = [0.0, 0.05, 0.1, 0.15, 0.2]
-
-    def te(p):
-        if float(p.sensor_axle) < 0.5:
-            return [float(p.T_R)] * len(c_grid)
-        return [float(v) for v in np.asarray(effective_track(np.asarray(c_grid), p.P, p.B, p.T_F, p.curvature_clip))]
-
     report: dict[str, Any] = {
         "fit": list(keys),
         "mode": mode,
+        "reference": reference,
+        "reference_requested": requested_reference,
         "rmse_heading": "odometer-only heading" if mode == "odometer" else f"{mode} heading",
         "config": {"refine_a": bool(refine_a), "calibration": bool(calibration), "track": track},
         "optimizer": "optax.scale_by_lbfgs (memory 10) + backtracking Armijo line search, whitened "
@@ -385,13 +349,20 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "correlation": {"parameters": corr_labels,
                         "matrix": [[None if not math.isfinite(v) else round(float(v), 6) for v in r] for r in full_corr],
                         "note": "null: stages are fitted one after the other; cross-stage correlations are not estimated"},
-        "effective_track": {"curvature": c_grid, "before_m": te(start), "after_m": te(fitted)},
+        "effective_track": R.effective_track_table(start, fitted),
         "drives": rows,
         "stages": stage_reports,
         "iterations": total_iter,
         "evaluations": total_eval,
         "warnings": warnings,
     }
+    if reference == "fixes":
+        report["fixes"] = {"window_s": fix_settings.window_s, "fix_sigma_m": fix_settings.fix_sigma_m,
+                           "heading_floor_deg": fix_settings.heading_floor_deg, "min_dist_m": fix_settings.min_dist_m}
+    if "deviation_deg" in keys:
+        report["deviation_deg"] = {"before": [float(v) for v in np.asarray(start.deviation_deg)],
+                                   "after": [float(v) for v in np.asarray(fitted.deviation_deg)],
+                                   "harmonics": list(deviation_harmonics(keys))}
     if plots_dir is not None:  # a failed plot is reported, never the end of a finished fit
         from . import plots
 
@@ -474,6 +445,7 @@ def main(args) -> int:
             kwargs[name] = v in ("on", True)
     if getattr(args, "increment_s", None) is not None:
         kwargs["increment_s"] = float(args.increment_s)
+    kwargs["reference"] = getattr(args, "reference", None) or "auto"
     fitted, report = identify(train, start, fit=keys, validate_drives=validate, mode=args.mode,
                               max_iter=args.max_iter, progress=console.progress_enabled(),
                               plots_dir=args.plots, **kwargs)

@@ -88,7 +88,8 @@ LOGIT_KEYS = {"P": (0.0, 1.0), "curvature_clip": (0.0, 1.0), "refine_compass_bad
 """Bounded keys, fitted through a sigmoid onto (lo, hi)."""
 
 SIGNED_KEYS = ("variation_deg", "rotation_deg", "X0", "Y0", "deviation_deg")
-"""Keys that may take any sign: fitted as they are (identity transform)."""
+"""Keys that may take any sign: fitted as they are (identity transform); the deviation table as the
+coefficients of a few harmonics (transform 'harmonics', identification.compass_fit)."""
 
 FILTER_KEYS = ("D_N", "wheel_error_K", "sdd_T", "heading_error_K", "K1", "K2", "F_update_distance_m",
                "map_threshold_deg", "compass_error_scale_deg", "compass_error_floor_deg", "reliability_scale_deg",
@@ -145,6 +146,8 @@ def _from_unconstrained(key: str, transform: str, u, xp):
 
 
 def _transform_of(key: str) -> str:
+    if key == "deviation_deg":
+        return "harmonics"
     if key in LOGIT_KEYS:
         return "logit"
     if key in SIGNED_KEYS:
@@ -161,8 +164,9 @@ class ParamSpace:
     sizes: tuple[int, ...]
     u0: np.ndarray            # unconstrained start values (flat)
     s: np.ndarray             # prior std in unconstrained units (flat)
-    labels: tuple[str, ...] = field(default=())  # one per coordinate: 'P', 'deviation_deg[3]', ...
+    labels: tuple[str, ...] = field(default=())  # one per coordinate: 'P', 'deviation_deg[cos2]', ...
     scale: np.ndarray | None = None  # theta = scale x g(u) (flat; None: 1), the softplus keys' c
+    harmonics: tuple[int, ...] = ()  # orders of the deviation curve (transform 'harmonics', compass_fit)
 
     @property
     def dim(self) -> int:
@@ -180,6 +184,12 @@ class ParamSpace:
         u = jnp.asarray(self.u0) + jnp.asarray(self.s) * z
         values = {}
         for key, tr, sl in self._segments():
+            if tr == "harmonics":  # the start table plus a few harmonics (compass_fit): theta = coefficients
+                from .compass_fit import harmonic_basis
+
+                basis = jnp.asarray(harmonic_basis(self.harmonics))
+                values[key] = jnp.asarray(getattr(base, key)) + basis @ (u[sl] - jnp.asarray(self.u0[sl]))
+                continue
             v = _from_unconstrained(key, tr, u[sl], jnp)
             if tr == "softplus":
                 v = jnp.asarray(self._scale()[sl]) * v
@@ -240,8 +250,13 @@ def parse_fit(fit: str | Sequence[str] | None) -> tuple[str, ...]:
     return tuple(out)
 
 
-def make_space(keys: Sequence[str], start, prior_std: Mapping[str, float] | None = None) -> ParamSpace:
-    """ParamSpace of ``keys`` around the start Params (the prior means)."""
+def make_space(keys: Sequence[str], start, prior_std: Mapping[str, float] | None = None,
+               all_keys: Sequence[str] | None = None) -> ParamSpace:
+    """ParamSpace of ``keys`` around the start Params (the prior means).  ``all_keys`` (default
+    ``keys``): the whole fit set, which decides the deviation curve's harmonics (compass_fit)."""
+    from .compass_fit import deviation_harmonics, harmonic_labels, project
+
+    orders = deviation_harmonics(tuple(all_keys) if all_keys is not None else tuple(keys))
     prior_std = dict(prior_std or {})
     for k in prior_std:
         if k not in PARAMETER_SPECS:
@@ -272,22 +287,28 @@ def make_space(keys: Sequence[str], start, prior_std: Mapping[str, float] | None
             uu = np.log(v)
         elif tr == "softplus":
             uu = np.zeros_like(v)
+        elif tr == "harmonics":
+            uu = project(v, orders)
+            c = np.ones_like(uu)
         else:
             uu = v.copy()
-        default = DEFAULT_PRIOR_STD_SIGNED if tr == "identity" else DEFAULT_PRIOR_STD_LOG
+        default = DEFAULT_PRIOR_STD_SIGNED if tr in ("identity", "harmonics") else DEFAULT_PRIOR_STD_LOG
         sd = float(prior_std.get(key, PRIOR_STD.get(key, default)))
         if tr == "softplus" and key not in prior_std:
             sd = max(sd, ZERO_START_PRIOR_STD)
         if not sd > 0.0:
             raise OdoCompassError(f"prior_std of {key!r} must be positive, got {sd}")
         transforms.append(tr)
-        sizes.append(v.size)
+        sizes.append(uu.size)
         u0.append(uu)
-        s.append(np.full(v.size, sd))
+        s.append(np.full(uu.size, sd))
         scales.append(c)
-        labels.extend([key] if v.size == 1 else [f"{key}[{j}]" for j in range(v.size)])
+        if tr == "harmonics":
+            labels.extend(harmonic_labels(key, orders))
+        else:
+            labels.extend([key] if v.size == 1 else [f"{key}[{j}]" for j in range(v.size)])
     return ParamSpace(tuple(keys), tuple(transforms), tuple(sizes), np.concatenate(u0), np.concatenate(s),
-                      tuple(labels), np.concatenate(scales))
+                      tuple(labels), np.concatenate(scales), orders if "deviation_deg" in keys else ())
 
 
 # ----------------------------------------------------------------------------------------------

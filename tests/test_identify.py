@@ -48,9 +48,9 @@ def _problem(drives, keys, lag=100, field="wheel_heading", mode="odometer", alig
 
 def test_param_space_round_trip_and_jacobian():
     start = jm.make_params(P=0.2, B=2.9, variation_deg=-3.0, curvature_clip=0.95)
-    space = L.make_space(("P", "B", "variation_deg", "curvature_clip", "deviation_deg"), start)
-    assert space.transforms == ("logit", "log", "identity", "logit", "identity")
-    assert space.dim == 4 + jm.params.DEVIATION_TABLE_SIZE
+    space = L.make_space(("P", "B", "variation_deg", "curvature_clip", "T_R"), start)
+    assert space.transforms == ("logit", "log", "identity", "logit", "log")
+    assert space.dim == 5  # the deviation table is fitted as harmonics: tests/test_compass_fit.py
     z0 = np.zeros(space.dim)
     p0 = space.to_params(jnp.asarray(z0), start)
     for k in ("P", "B", "variation_deg", "curvature_clip"):
