@@ -63,10 +63,15 @@ def cluster(address: str | None, workers: int | None):
             if address:
                 ray.init(address=address, **kwargs)
             else:
-                ray.init(num_cpus=workers or os.cpu_count() or 1, **kwargs)
+                # "local": a new cluster even when `ray start` left one (or its stale address) on this machine
+                ray.init(address="local", num_cpus=workers or os.cpu_count() or 1, **kwargs)
         except Exception as exc:  # noqa: BLE001 - connection refused, bad address, no cluster
             where = f"--address {address}" if address else "a local Ray cluster"
-            raise OdoCompassError(f"{where}: cannot start Ray: {' '.join(str(exc).split())[:300]}") from None
+            hint = ""
+            if address and os.environ.get("RAY_AUTH_MODE") != "token":
+                hint = ("; if the cluster uses token authentication (Ray >= 2.59 clusters do by default), set "
+                        "RAY_AUTH_MODE=token and its token (RAY_AUTH_TOKEN, or ~/.ray/auth_token) here")
+            raise OdoCompassError(f"{where}: cannot start Ray: {' '.join(str(exc).split())[:300]}{hint}") from None
         started = True
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
