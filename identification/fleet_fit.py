@@ -176,6 +176,7 @@ def _ev_dicts(out, inputs, ref, mask, counts, fields=EVAL_FIELDS):
     dicts = []
     for v, c in enumerate(counts):
         d = {k: out[i][v, :c] for i, k in enumerate(fields)}
+        d["started"] = out[-1][v, :c]
         d["weight"] = mask[v, :c] * (out[-1][v, :c] > 0.5)
         d["ref"] = ref[v, :c]
         d["time_s"] = np.asarray(inputs.time_s)[v, :c]
@@ -246,7 +247,7 @@ def fit_group(vehicles: list[VehicleData], start, keys, options: FitOptions, act
         t_stage = time.perf_counter()
         cfg = jaxmodel.Config(mode=stage.mode, refine_a=options.refine_a, calibration=options.calibration,
                               track=options.track)
-        space = L.make_space(stage.keys, start)
+        space = L.make_space(stage.keys, start, all_keys=keys)
         n_eff, prev, sw = _stage_arrays(stage, inputs, mask, start, options.decorrelation_s)
         template = L.StageProblem(space, None, None, None, None, cfg, stage.field_name, stage.align, None, 0, None, None)
         fn = _stage_function(template, prev is not None, sw is not None)
@@ -395,8 +396,6 @@ def _drive_warnings(veh, start, ev) -> list[str]:
 
 def _report(veh, start, fitted, keys, options, pv, ev_before, ev_after, wall, group_size) -> dict[str, Any]:
     """identify's report for one vehicle of the group (same keys; see identification.identify)."""
-    from jaxmodel.track import effective_track
-
     from .identify import KEY_HINTS
 
     n_train = len(veh.train)
@@ -404,50 +403,13 @@ def _report(veh, start, fitted, keys, options, pv, ev_before, ev_after, wall, gr
     roles = ["train"] * n_train + ["validate"] * len(veh.validate)
     rows = rmse_rows(ev_before, ev_after, drives, roles, options.mode)
     warnings = list(pv["warnings"])
-    w_train = ev_after["weight"][:n_train] > 0
-    moving = w_train & (ev_after["speed"][:n_train] > 0.5)
-    curv = np.abs(ev_after["curvature"][:n_train][moving])
-    cmax = float(np.percentile(curv, 99.5)) if curv.size else 0.0
-    speed = ev_after["speed"][:n_train][moving]
-    vmax = float(np.percentile(speed, 99.5)) if speed.size else 0.0
-    refinements = int(np.sum(np.abs(np.diff(ev_after["a"][:n_train], axis=-1)) > 0))
-    dmax = float(np.max(ev_after["distance"][:n_train], initial=0.0))
     params = pv["param_rows"]
-    done = set()
-    for label, row in params.items():
-        if row["status"] != "not identifiable":
-            continue
-        key = label.split("[")[0]
-        if "[" in label:
-            if key in done:
-                continue
-            done.add(key)
-            entries = [lb for lb in params if lb.split("[")[0] == key]
-            bad = [lb for lb in entries if params[lb]["status"] == "not identifiable"]
-            warnings.append(f"{key}: {len(bad)} of {len(entries)} entries are not identifiable from these drives; "
-                            f"kept at their starting values")
-            continue
-        why = "the loss does not depend on it with these drives and settings" if not row["data_signal"] else \
-            f"posterior std = {row['posterior_to_prior_std']:.2f} x prior std"
-        hint = KEY_HINTS.get(key, "").format(cmax=cmax, vmax=vmax, refinements=refinements, dmax=dmax)
-        warnings.append(f"{label} is not identifiable from these drives ({why}); kept at the starting value "
-                        f"{row['start']:.6g}" + (f". {hint}" if hint else ""))
+    warnings += R.identifiability_warnings(params, R.identifiability_context(ev_after, n_train), KEY_HINTS)
     labels = pv["corr_labels"]
-    full = np.full((len(labels), len(labels)), np.nan)
-    i0 = 0
-    for block in pv["corr_blocks"]:
-        n = block.shape[0]
-        full[i0:i0 + n, i0:i0 + n] = block
-        i0 += n
+    full = R.block_correlation(labels, pv["corr_blocks"])
     for a_, b_, c_ in R.correlated_pairs(labels, np.nan_to_num(full)):
         warnings.append(f"{a_} and {b_} are {abs(c_):.3f} {'correlated' if c_ > 0 else 'anti-correlated'}: "
                         f"the drives identify a combination of them, not each one")
-    c_grid = [0.0, 0.05, 0.1, 0.15, 0.2]
-
-    def te(p):
-        if float(p.sensor_axle) < 0.5:
-            return [float(p.T_R)] * len(c_grid)
-        return [float(x) for x in np.asarray(effective_track(np.asarray(c_grid), p.P, p.B, p.T_F, p.curvature_clip))]
 
     return {
         "fit": list(keys), "mode": options.mode,
@@ -463,7 +425,7 @@ def _report(veh, start, fitted, keys, options, pv, ev_before, ev_after, wall, gr
         "correlation": {"parameters": labels,
                         "matrix": [[None if not math.isfinite(x) else round(float(x), 6) for x in r] for r in full],
                         "note": "null: stages are fitted one after the other; cross-stage correlations are not estimated"},
-        "effective_track": {"curvature": c_grid, "before_m": te(start), "after_m": te(fitted)},
+        "effective_track": R.effective_track_table(start, fitted),
         "drives": rows, "stages": pv["stage_reports"], "iterations": pv["iters"], "evaluations": pv["evals"],
         "drive_warnings": _drive_warnings(veh, start, ev_before),
         "warnings": warnings,
