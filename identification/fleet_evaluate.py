@@ -218,7 +218,7 @@ def main(args) -> int:
     with fleet_ray.cluster(args.address, args.workers) as in_flight:
         remote = ray.remote(num_cpus=1, max_retries=fleet_ray.MAX_RETRIES)(evaluate_task)
         fleet_ray.run_tasks(remote, payloads, in_flight, [len(p["drives"]) for p in payloads], on_result,
-                            "fleet evaluate", console.progress_enabled())
+                            "fleet evaluate", console.progress_enabled(), unit="drive")
     rows.sort(key=lambda r: order[(r["vehicle_id"], r["path"])])
     path = write_metrics(out_dir / "metrics.parquet", rows)
     errors = [r for r in rows if r["status"] == "error"]

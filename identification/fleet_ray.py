@@ -82,17 +82,17 @@ def cluster(address: str | None, workers: int | None):
 
 
 def run_tasks(remote_fn, payloads: list, in_flight: int, weights: Iterable[int], on_result: Callable,
-              desc: str, progress: bool) -> None:
+              desc: str, progress: bool, unit: str = "vehicle") -> None:
     """Submit ``remote_fn.remote(p)`` for each payload, at most ``in_flight`` at a time; call
     ``on_result(payload, result_or_exception)`` as each finishes (in completion order); a tqdm
-    bar over ``weights`` (vehicles per payload) when ``progress``."""
+    bar over ``weights`` (vehicles or drives per payload, ``unit``) when ``progress``."""
     ray = _import_ray()
     weights = list(weights)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=sum(weights), desc=desc, unit="vehicle", file=sys.stderr, dynamic_ncols=True)
+        bar = tqdm(total=sum(weights), desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True)
     pending: dict = {}
     queue = list(range(len(payloads)))
     try:
