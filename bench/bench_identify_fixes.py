@@ -40,7 +40,7 @@ from identification.simulate import simulate  # noqa: E402
 
 START = dict(P=0.125, B=2.70, T_F=1.55, a=1.0e-4)
 VEHICLE = dict(P=0.135, B=2.78, T_F=1.59, a=1.3e-4, X0=3.0, Y0=-2.0,
-               deviation_deg=[float(v) for v in soft_iron_table(1.0, 30.0, 0.2)])
+               deviation_deg=[float(v) for v in soft_iron_table(1.0, 30.0)])
 TRAIN = [("mixed", 1200.0), ("urban", 720.0), ("parking", 480.0)]
 HELD_OUT = [("mixed", 600.0)]
 FIT = "P,B,T_F,a,T_C,D_N,X0,Y0,deviation_deg"

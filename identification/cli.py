@@ -195,10 +195,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="left/right dpp calibration while fitting (off: fit the raw wheel model)")
     i.add_argument("--increment-s", type=_number(0.0, lo_open=False), default=30.0, metavar="S",
                    help="odometer heading fitted as heading changes over this many seconds "
-                        "(0: absolute, offset removed)")
+                        "(0: absolute, offset removed); against fixes the changes span 60 s")
     i.add_argument("--reference", choices=("heading", "fixes", "auto"), default="auto",
                    help="what the drives are fitted against: ref_heading_deg, the position fixes (fix_east_m, "
-                        "fix_north_m, fix_valid: course of 10 s chords of the track), or auto (ref_heading_deg "
+                        "fix_north_m, fix_valid: course of 20 s chords of the track), or auto (ref_heading_deg "
                         "when every training drive has it, else the fixes)")
 
     b = add("build-fmu", "export the estimator FMU",

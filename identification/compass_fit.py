@@ -10,7 +10,8 @@ the deviation a 36-entry table over A (10° apart, interpolated).  Identified fr
   whose distance constant (D_N, kilometres) averages a heading-dependent error away.  Against a
   reference heading the error is absolute; against fixes it is the course of chords of the
   compass-mode track (``fixes_loss``), which knows true north.
-* The deviation table is never 36 free numbers: it is the start table plus a few harmonics of A,
+* The deviation table is never 36 free numbers: it is the start table plus the harmonics of A of
+  the classical compass deviation formula (Archibald Smith: delta = A + B sin + C cos + D sin 2 + E cos 2),
 
       deviation(A_j) = start_j + sum_k (c_k cos k A_j + s_k sin k A_j),   k in DEVIATION_HARMONICS
 
@@ -18,7 +19,10 @@ the deviation a 36-entry table over A (10° apart, interpolated).  Identified fr
   first harmonic is, to first order in |offset|/|field|, exactly the heading error of a hard-iron
   offset (atan2(H sin A + Y0', H cos A + X0') - A ~ (Y0' cos A - X0' sin A) / H), so when X0 or Y0
   is fitted too the harmonics start at 2 (soft iron, which distorts the field circle into an
-  ellipse, is a second harmonic).  R and V are one constant in H_C: fitting both reports their
+  ellipse, is a second harmonic).  Higher harmonics are left out: measured on simulated drives, a
+  third harmonic fitted the route-specific dip errors of road grade (0.6-1.0° on 40 minutes, 3
+  reported standard errors) and made held-out headings worse (docs/identification.md).
+  R and V are one constant in H_C: fitting both reports their
   correlation (-1) and "only their combination is identified"; so does an offset on a drive that
   never turns.
 """
@@ -28,13 +32,13 @@ from __future__ import annotations
 import numpy as np
 
 DEVIATION_TABLE_SIZE = 36
-MAX_HARMONIC = 3
+MAX_HARMONIC = 2
 COMPASS_KEYS = ("X0", "Y0", "rotation_deg", "variation_deg", "deviation_deg")
 """Keys that act on the compass heading alone (FIG. 8A); fitted in stage 'compass' on that heading."""
 
 
 def deviation_harmonics(fit_keys) -> tuple[int, ...]:
-    """Harmonic orders of the deviation curve: 2..MAX_HARMONIC when X0 or Y0 is fitted too, else 1..MAX_HARMONIC."""
+    """Harmonic orders of the deviation curve: (2,) when X0 or Y0 is fitted too, else (1, 2)."""
     first = 2 if ("X0" in fit_keys or "Y0" in fit_keys) else 1
     return tuple(range(first, MAX_HARMONIC + 1))
 

@@ -29,7 +29,7 @@ error level profiled out, so sigma_f and sigma_h only shape the relative weights
 
 Unknown start heading: the odometer heading starts from one compass sample (a constant offset of
 the whole drive), so the wheel stage fits *changes* of the chord error: r = 2 sin((e_k - e_p)/2)
-with p the last chord ending at least ``increment_s`` earlier, weighted 1/(1/w_k + 1/w_p) (the
+with p the last chord ending at least ``increment_s`` (60 s) earlier, weighted 1/(1/w_k + 1/w_p) (the
 variances add).  The offset cancels exactly, as in the heading loss's increments.  Stages on an
 absolute heading (compass, complementary, Kalman) fit e_k itself: the offset is what they must
 remove, and the fixes, unlike the compass, know true north.
@@ -51,15 +51,23 @@ from jaxmodel.angles import wrap
 
 from . import loss as L
 
-DEFAULT_WINDOW_S = 10.0
+DEFAULT_WINDOW_S = 20.0
 """Chord length in time: long enough that the fixes' noise is small against the displacement at
-town speeds (10 s at 10 m/s: 100 m, 2.4° for sigma_f = 3 m), short enough for many chords."""
+town speeds (20 s at 10 m/s: 200 m, 1.2° for sigma_f = 3 m), short enough for many chords
+(measured against 5, 10 and 30 s: docs/identification.md)."""
+DEFAULT_INCREMENT_S = 60.0
+"""The wheel stage fits changes of the chord error over this span (measured against 30 and 90 s)."""
 DEFAULT_FIX_SIGMA_M = 3.0
 """Assumed fix error per axis (m) in the chord weights (only their relative size matters)."""
 DEFAULT_HEADING_FLOOR_DEG = 1.0
 """Assumed heading error of the dead-reckoned chord itself (weights of long chords)."""
 DEFAULT_MIN_DIST_M = 10.0
 """Chords shorter than this carry no usable course (standstill, parking at walking pace)."""
+DEFAULT_STRAIGHT_DEG = 10.0
+"""Compass stage: only chords over which the odometer heading turns less than this.  In a turn the
+body rolls (lateral acceleration) and the vertical field leaks into the horizontal components (the
+dip or turning error); a deviation curve fitted there absorbs the turns of the training drives
+(measured: docs/identification.md)."""
 MAX_WINDOW_FACTOR = 3.0
 """A chord spanning more than this many windows (across a fix outage) is not used."""
 
@@ -67,9 +75,11 @@ MAX_WINDOW_FACTOR = 3.0
 @dataclass(frozen=True)
 class FixSettings:
     window_s: float = DEFAULT_WINDOW_S
+    increment_s: float = DEFAULT_INCREMENT_S
     fix_sigma_m: float = DEFAULT_FIX_SIGMA_M
     heading_floor_deg: float = DEFAULT_HEADING_FLOOR_DEG
     min_dist_m: float = DEFAULT_MIN_DIST_M
+    straight_deg: float = DEFAULT_STRAIGHT_DEG
 
 
 @dataclass
@@ -200,11 +210,16 @@ class FixesProblem:
     n_eff: np.ndarray
     prev: np.ndarray | None = None   # chord increments (wheel stage)
     align: bool = False
+    straight_deg: float = 0.0        # > 0: only chords over which the odometer heading turns less (compass stage)
 
     def _r(self, z, checkpoint=False):
         p = self.space.to_params(z, self.base)
-        x, y, started = L.batch_outputs(p, self.inputs, self.config, ("x", "y"), checkpoint)
+        x, y, wh, started = L.batch_outputs(p, self.inputs, self.config, ("x", "y", "wheel_heading"), checkpoint)
         e, w = chord_errors(x, y, started, self.chords)
+        if self.straight_deg > 0:
+            turn = wrap(jnp.take_along_axis(wh, jnp.asarray(self.chords.end), axis=-1)
+                        - jnp.take_along_axis(wh, jnp.asarray(self.chords.start), axis=-1))
+            w = w * jax.lax.stop_gradient(jnp.abs(turn) < math.radians(self.straight_deg))
         r, w = chord_residuals(e, w, self.prev, self.align)
         return r, w, e
 
@@ -218,9 +233,10 @@ class FixesProblem:
 
 
 def build_problem(space, base, inputs, mask, config, *, absolute: bool, increment_s: float,
-                  settings: FixSettings = FixSettings(), align: bool = False) -> FixesProblem:
+                  settings: FixSettings = FixSettings(), align: bool = False,
+                  straight: bool = False) -> FixesProblem:
     """The fixes stage problem: chord changes over ``increment_s`` (``absolute`` False, the odometer
-    heading), or absolute chord errors (``absolute``)."""
+    heading), or absolute chord errors (``absolute``); ``straight``: straight chords only."""
     chords = make_chords(inputs, mask, settings)
     prev = None
     if not absolute and not align and increment_s > 0:
@@ -228,7 +244,8 @@ def build_problem(space, base, inputs, mask, config, *, absolute: bool, incremen
         n_eff = effective_chord_counts(chords, max(increment_s, settings.window_s))
     else:
         n_eff = effective_chord_counts(chords, settings.window_s)
-    return FixesProblem(space, base, inputs, chords, config, n_eff, prev, align and not absolute)
+    return FixesProblem(space, base, inputs, chords, config, n_eff, prev, align and not absolute,
+                        settings.straight_deg if straight else 0.0)
 
 
 # ----------------------------------------------------------------------------------------------

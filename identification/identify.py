@@ -174,13 +174,14 @@ def _heading_problem(stage, space, base, inputs, ref, mask, cfg, start, decorrel
 def _fixes_problem(stage, space, base, inputs, sample_mask, cfg, settings):
     """The stage problem against the fixes (fixes_loss.py) and its loss's description."""
     absolute = stage.field_name != "wheel_heading"
-    inc = stage.lag_s if stage.lag_s > 0 else 0.0
+    inc = settings.increment_s if stage.lag_s > 0 or stage.lag_m > 0 else 0.0  # --increment-s 0: offset profiled
     problem = FX.build_problem(space, base, inputs, sample_mask, cfg, absolute=absolute, increment_s=inc,
-                               settings=settings, align=stage.align)
+                               settings=settings, align=stage.align, straight=stage.name == "compass")
     what = (f"the change over {inc:g} s of" if problem.prev is not None
             else "the per-drive offset-removed" if problem.align else "the absolute")
     text = (f"1 - cos of {what} course error of {settings.window_s:g} s chords of the {stage.mode} track "
-            f"against the fixes (weights 1/(2 sigma_f^2/|d|^2 + sigma_h^2))")
+            f"against the fixes (weights 1/(2 sigma_f^2/|d|^2 + sigma_h^2))"
+            + (f", chords turning less than {settings.straight_deg:g} deg" if problem.straight_deg > 0 else ""))
     return problem, text
 
 
@@ -357,8 +358,10 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "warnings": warnings,
     }
     if reference == "fixes":
-        report["fixes"] = {"window_s": fix_settings.window_s, "fix_sigma_m": fix_settings.fix_sigma_m,
-                           "heading_floor_deg": fix_settings.heading_floor_deg, "min_dist_m": fix_settings.min_dist_m}
+        report["fixes"] = {"window_s": fix_settings.window_s, "increment_s": fix_settings.increment_s,
+                           "fix_sigma_m": fix_settings.fix_sigma_m,
+                           "heading_floor_deg": fix_settings.heading_floor_deg, "min_dist_m": fix_settings.min_dist_m,
+                           "straight_deg": fix_settings.straight_deg}
     if "deviation_deg" in keys:
         report["deviation_deg"] = {"before": [float(v) for v in np.asarray(start.deviation_deg)],
                                    "after": [float(v) for v in np.asarray(fitted.deviation_deg)],
