@@ -268,15 +268,21 @@ def chord_course_rmse_deg(x, y, started, chords: Chords, b: int, min_dist_m: flo
 
 def position_rmse_m(x, y, fix_east, fix_north, fix_valid, started, align_fixes: int = 5) -> float:
     """RMS (m) distance of the dead-reckoned track from the fixes, the track translated so that it
-    matches the mean of its first ``align_fixes`` fixes after the heading started (one drive, numpy)."""
+    matches the mean of its first ``align_fixes`` fixes after the heading started (one drive, numpy);
+    ``align_fixes`` = 0: not translated (a track already in the fixes' frame, the Kalman mode's), the
+    first fix left out (it initialises that track)."""
     x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
     ok = (np.asarray(fix_valid) > 0.5) & (np.asarray(started) > 0.5)
     idx = np.flatnonzero(ok)
     if idx.size < 2:
         return float("nan")
-    first = idx[:align_fixes]
-    ox = np.mean(np.asarray(fix_east)[first] - x[first])
-    oy = np.mean(np.asarray(fix_north)[first] - y[first])
+    if align_fixes > 0:
+        first = idx[:align_fixes]
+        ox = np.mean(np.asarray(fix_east)[first] - x[first])
+        oy = np.mean(np.asarray(fix_north)[first] - y[first])
+    else:
+        ox = oy = 0.0
+        idx = idx[1:]
     dx = x[idx] + ox - np.asarray(fix_east)[idx]
     dy = y[idx] + oy - np.asarray(fix_north)[idx]
     return float(np.sqrt(np.mean(dx * dx + dy * dy)))

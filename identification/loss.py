@@ -11,7 +11,8 @@ The optimiser sees one flat vector ``z``, *whitened* so that the prior is N(0, I
                               c * softplus for a non-negative key (``a``, sigmas, gains) whose
                               start value is 0 (see below),
                               identity for signed quantities (compass offsets, rotation,
-                              variation, the deviation table).
+                              variation); the deviation table as the coefficients of a few
+                              harmonics added to the start table (compass_fit, issue 14).
 
 A start value of 0 is where users start for ``a`` (nobody measured it) and other non-negative keys
 (``jaxmodel.params.NON_NEGATIVE_KEYS``), but it is the boundary of their range: no smooth map of
