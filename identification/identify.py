@@ -16,7 +16,13 @@ Stages (which heading carries which parameter's signal, see identification.loss)
   heading cancels, and slowly accumulating wheel-slip noise does not dominate the fit); then
   stage "filter" fits the requested filter keys (``D_N``, ...) on the absolute complementary
   heading with the wheel parameters fixed at their fitted values.
+  Compass keys (``compass_fit.COMPASS_KEYS``: X0, Y0, rotation, variation, the deviation curve)
+  go to a stage "compass" in between, on the compass heading (US 4,734,863 FIG. 8A).
 * mode ``complementary`` / ``kalman``: one stage, every key on that mode's absolute heading.
+
+Reference (issue 14): ``reference="heading"`` fits against ``ref_heading_deg`` (loss.py);
+``"fixes"`` against the position fixes, the course of chords of the dead-reckoned track
+(fixes_loss.py); ``"auto"`` takes the heading when every training drive has one.
 
 The estimator configuration used for fitting is ``refine_a=True`` (as ``estimate``),
 ``calibration=False`` (the left/right calibration adapts the wheel model itself; add ``dpp_right``

@@ -28,7 +28,6 @@ def stack(drives):
     from .drive_log import stack_drives
 
     inputs, mask = stack_drives(drives)
-    n_max = mask.shape[1]
     ref = np.zeros_like(mask)
     rmask = np.zeros_like(mask)
     for b, d in enumerate(drives):
@@ -37,7 +36,6 @@ def stack(drives):
             ok = np.isfinite(r)
             ref[b, :len(r)] = np.where(ok, r, 0.0)
             rmask[b, :len(r)] = ok
-    del n_max
     return jax.tree_util.tree_map(jnp.asarray, inputs), ref, mask, mask * rmask
 
 
