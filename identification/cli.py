@@ -172,6 +172,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="online refinement of the velocity coefficient a (US 4,788,645 eq. 13)")
     e.add_argument("--track", choices=("closed_form", "table"), default="closed_form",
                    help="effective track: eq. (14) or the table look-up of claims 15-16")
+    e.add_argument("--filter", choices=("robust", "seed"), default="robust",
+                   help="robust: odometer guard in every mode, F-DELTA by a Kalman filter with a rate state (tyre "
+                        "mismatch), B_E per heading, calibration up to 3 %% (docs/tuning.md); seed: US 4,734,863's "
+                        "first-order F-DELTA as first tuned on the project's simulator, for comparison")
 
     i = add("identify", "identify vehicle parameters by gradient descent",
             "Fits vehicle parameters to reference headings (column ref_heading_deg, degrees) of logged drives "

@@ -16,16 +16,16 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 MODE_CONFIGS = {
-    "default": dict(robust=True),
-    "default_cal_off": dict(robust=True, calibration=False),
-    "seed_filter": dict(),
+    "default": dict(),
+    "default_cal_off": dict(calibration=False),
+    "seed_filter": dict(robust=False),
     "odometer": dict(mode="odometer", robust=True),
     "compass": dict(mode="compass", robust=True),
     "kalman": dict(mode="kalman", robust=True),
     "kalman_fixes": dict(mode="kalman", robust=True),
 }
-"""Mode name -> jaxmodel.Config fields.  ``default`` is the robust estimator (Config.robust, the
-candidate default), ``seed_filter`` today's default (Config()).  Every mode runs with calibration on except default_cal_off;
+"""Mode name -> jaxmodel.Config fields.  ``default`` is the default estimator (Config(), robust since
+issue 10), ``seed_filter`` the seed's first-order filter (Config(robust=False), the default before).  Every mode runs with calibration on except default_cal_off;
 ``kalman`` sees no fixes, ``kalman_fixes`` the drive's 1 Hz fixes (sigma 4 m)."""
 
 SKIP_S = 60.0

@@ -52,10 +52,11 @@ def init_guard_state():
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
-    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, kept, new GuardState).
+    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, new GuardState).
 
-    raw_ok: the counts passed both checks as they were; kept: the sample's motion is used (raw or
-    substituted).  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
+    raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
+    wheel beyond max_speed is a counter fault, not motion); kept: the sample's motion is used (raw
+    or substituted).  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
     """
     g = gs.fields()
     step_dt = jnp.where(time_ok, dt, 0.1)
@@ -98,4 +99,4 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
         rate_right=g.rate_right + w * (d_right * inv_dt - g.rate_right),
         rate_dD=g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
         substituted=substituted))
-    return d_left, d_right, raw_ok, kept, new
+    return d_left, d_right, raw_ok, counts_ok & ~left_fast & ~right_fast, kept, new

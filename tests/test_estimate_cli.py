@@ -169,7 +169,8 @@ def test_estimate_cli_writes_table(tmp_path, params_file, capsys, fmt):
 
 @pytest.mark.parametrize("options", [
     ["--mode", "odometer"], ["--mode", "compass"], ["--mode", "kalman"],
-    ["--calibration", "off", "--refine-a", "off"], ["--track", "table"],
+    ["--calibration", "off", "--refine-a", "off"], ["--track", "table"], ["--filter", "seed"],
+    ["--filter", "robust", "--mode", "odometer"],
 ])
 def test_estimate_cli_options(tmp_path, capsys, options):
     drive_path = write_drive(tmp_path / "drive.csv", drive_columns())
@@ -178,6 +179,21 @@ def test_estimate_cli_options(tmp_path, capsys, options):
     assert rc == 0, err
     table = read_table(out)
     assert np.all(np.isfinite(table["heading_deg"])) and len(table["heading_deg"]) == N
+
+
+def test_filter_seed_is_the_seed_filter_and_robust_the_default(tmp_path, params_file, capsys):
+    """--filter robust (the default) and --filter seed run Config(robust=True / False), nothing else differs."""
+    cols = drive_columns()
+    drive_path = write_drive(tmp_path / "drive.csv", cols)
+    inputs = drive_from_columns(cols).inputs
+    params = jaxmodel.make_params(sensor_axle="rear", T_R=1.55, a=0.0)
+    for option, robust in ((None, True), ("robust", True), ("seed", False)):
+        out = tmp_path / f"est_{option}.csv"
+        argv = ["estimate", str(drive_path), "--params", str(params_file), "--out", str(out)]
+        rc, err = run_cli(argv + (["--filter", option] if option else []), capsys)
+        assert rc == 0, err
+        expected = np.degrees(np.asarray(jaxmodel.run(params, inputs, jaxmodel.Config(robust=robust)).heading))
+        np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
 
 
 def test_estimate_cli_parquet_output(tmp_path, capsys):
