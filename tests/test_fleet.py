@@ -35,8 +35,10 @@ PLAN = (("mixed", 240.0), ("urban", 180.0))
 FIT = "T_F,a"
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def ray_cluster():
+    """A local cluster for this module only: shut down after it, so the tests that follow compile
+    their XLA programs without Ray's threads in the process (CI once crashed in XLA's compiler there)."""
     from identification.fleet_ray import XLA_ONE_THREAD
 
     started = not ray.is_initialized()
