@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import gc
+
 import jax
 import pytest
 
@@ -18,3 +20,13 @@ def real_data_dir():
     if not REAL_DATA.is_dir():
         pytest.skip(f"real logs not available: {REAL_DATA} is absent (they live in ../shared, outside the repo)")
     return REAL_DATA
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_programs():
+    """Drop every module's compiled XLA programs after it: a whole-suite run in one process crashed
+    (SIGSEGV in XLA's compiler) after ~550 tests had accumulated their programs; each file alone,
+    and the same files in pairs, pass."""
+    yield
+    jax.clear_caches()
+    gc.collect()
