@@ -35,36 +35,46 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
+from .packed import packed_state
 from .params import deg
 
 UNINITIALIZED_BOUND = jnp.pi
 """heading_bound (rad) before any absolute heading started the estimate: nothing supports it."""
 
 
-class OffsetState(NamedTuple):
+class OffsetFields(NamedTuple):
     """x = (delta, beta, c): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
-    error (rad); P (3, 3) their covariance; ``disturbance`` the innovation averaged over
-    filter_check_m (rad); ``since_absolute`` metres since the last absolute sample."""
+    error (rad); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
+    averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample."""
 
-    x: jnp.ndarray
-    P: jnp.ndarray
+    delta: jnp.ndarray
+    beta: jnp.ndarray
+    c: jnp.ndarray
+    p00: jnp.ndarray
+    p01: jnp.ndarray
+    p02: jnp.ndarray
+    p11: jnp.ndarray
+    p12: jnp.ndarray
+    p22: jnp.ndarray
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
 
-    @property
-    def delta(self):
-        return self.x[..., 0]
+
+# One float64 vector, and the 3x3 algebra written out on its scalars: inside the vmapped scan,
+# XLA:CPU runs each tiny matmul as its own kernel; written out, the step fuses (bench/bench_run.py).
+OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
+OffsetState.__module__ = __name__
 
 
 def init_offset_state(params):
     z = jnp.zeros((), jnp.float64)
-    P = jnp.diag(jnp.stack([deg(params.filter_sigma0_deg) ** 2, params.filter_rate_sigma0 ** 2,
-                            deg(params.filter_gm_sigma_deg) ** 2]))
-    return OffsetState(jnp.zeros((3,), jnp.float64), P, z, z)
+    return OffsetState.pack(OffsetFields(
+        delta=z, beta=z, c=z, p00=deg(params.filter_sigma0_deg) ** 2, p01=z, p02=z,
+        p11=jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2, p12=z,
+        p22=deg(params.filter_gm_sigma_deg) ** 2, disturbance=z, since_absolute=z))
 
 
 def start(params):
@@ -72,34 +82,52 @@ def start(params):
     return init_offset_state(params)
 
 
+def covariance(fs):
+    """P (..., 3, 3) of (delta, beta, c), from the packed upper triangle."""
+    f = fs.fields()
+    rows = [[f.p00, f.p01, f.p02], [f.p01, f.p11, f.p12], [f.p02, f.p12, f.p22]]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
 def predict(params, fs, ad_signed, d_t, alpha):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
 
-    The coloured compass error is first-order Gauss-Markov over filter_gm_m metres of stationary
-    sigma filter_gm_sigma_deg (anomalies and dip errors are fixed in space, so in distance).
+    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0], [0, 1, 0], [0, 0, phi]].  The coloured
+    compass error is first-order Gauss-Markov over filter_gm_m metres of stationary sigma
+    filter_gm_sigma_deg (anomalies and dip errors are fixed in space, so in distance):
+    phi = exp(-|AD| / filter_gm_m).
     """
+    f = fs.fields()
+    a = ad_signed
     phi = jnp.exp(-d_t / params.filter_gm_m)
-    one, zero = jnp.ones_like(phi), jnp.zeros_like(phi)
-    F = jnp.stack([jnp.stack([one, ad_signed, zero]), jnp.stack([zero, one, zero]), jnp.stack([zero, zero, phi])])
-    q = jnp.stack([params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2,
-                   params.filter_rate_psd * d_t, deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi)])
-    x = F @ fs.x
-    P = F @ fs.P @ F.T + jnp.diag(q)
-    return OffsetState(x, P, fs.disturbance, fs.since_absolute + d_t)
+    q0 = params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2
+    q1 = params.filter_rate_psd * d_t
+    q2 = deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi)
+    return OffsetState.pack(OffsetFields(
+        delta=f.delta + a * f.beta, beta=f.beta, c=phi * f.c,
+        p00=f.p00 + 2.0 * a * f.p01 + a * a * f.p11 + q0,
+        p01=f.p01 + a * f.p11,
+        p02=phi * (f.p02 + a * f.p12),
+        p11=f.p11 + q1,
+        p12=phi * f.p12,
+        p22=phi * phi * f.p22 + q2,
+        disturbance=f.disturbance, since_absolute=f.since_absolute + d_t))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
-    DELTA = delta + c + white noise.  Returns (new state, accepted weight in [0, 1]: 1 a clean
-    sample, near 0 a rejected one).
+    DELTA = delta + c + white noise (h = [1, 0, 1]).  Returns (new state, accepted weight in
+    [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
-    h = jnp.array([1.0, 0.0, 1.0])
-    nu = wrap(delta_meas - fs.x[0] - fs.x[2])
-    p_hh = h @ fs.P @ h
+    f = fs.fields()
+    nu = wrap(delta_meas - f.delta - f.c)
+    # P h and h^T P h.
+    ph0, ph1, ph2 = f.p00 + f.p02, f.p01 + f.p12, f.p02 + f.p22
+    p_hh = ph0 + ph2
     # Running agreement of DELTA with the wheels over filter_check_m metres.
     keep = jnp.exp(-d_t / params.filter_check_m)
-    disturbance = jnp.where(ok, keep * fs.disturbance + (1.0 - keep) * nu, fs.disturbance)
+    disturbance = jnp.where(ok, keep * f.disturbance + (1.0 - keep) * nu, f.disturbance)
     s2 = deg(params.filter_check_sigma_deg) ** 2
     gate2 = params.filter_gate_sigma ** 2
     z2 = disturbance ** 2 / (p_hh + s2)
@@ -107,25 +135,25 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     per_distance = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
-    ph = fs.P @ h
-    gain = ph / (p_hh + r)
-    x = fs.x + gain * nu
-    x = x.at[0].set(wrap(x[0]))
-    P = fs.P - jnp.outer(gain, ph)
-    P = 0.5 * (P + P.T)
-    new = OffsetState(x, P, disturbance - (gain[0] + gain[2]) * nu, jnp.zeros_like(fs.since_absolute))
-    old = OffsetState(fs.x, fs.P, disturbance, fs.since_absolute)
-    out = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, old)
+    inv = 1.0 / (p_hh + r)
+    g0, g1, g2 = ph0 * inv, ph1 * inv, ph2 * inv
+    new = OffsetFields(
+        delta=wrap(f.delta + g0 * nu), beta=f.beta + g1 * nu, c=f.c + g2 * nu,
+        p00=f.p00 - g0 * ph0, p01=f.p01 - g0 * ph1, p02=f.p02 - g0 * ph2,
+        p11=f.p11 - g1 * ph1, p12=f.p12 - g1 * ph2, p22=f.p22 - g2 * ph2,
+        disturbance=disturbance - (g0 + g2) * nu, since_absolute=jnp.zeros_like(f.since_absolute))
+    old = f._replace(disturbance=disturbance)
+    out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
     weight = jnp.where(ok, 1.0 / (1.0 + z2 / gate2), 0.0)
     return out, weight
 
 
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves opposite."""
-    return fs._replace(x=fs.x.at[1].add(-change_per_m))
+    return OffsetState(fs.vector.at[..., OffsetFields._fields.index("beta")].add(-change_per_m))
 
 
 def bound(fs, initialized):
     """Heading bound (rad): sqrt of the offset variance; UNINITIALIZED_BOUND before the start."""
-    p = fs.P[0, 0]
+    p = fs.p00
     return jnp.where(initialized > 0.5, jnp.sqrt(jnp.maximum(p, 0.0)), UNINITIALIZED_BOUND)
