@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from . import calibration as _cal
 from . import compass as _compass
+from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
 from . import offset_filter as _offset
@@ -45,7 +46,8 @@ class Config(NamedTuple):
     cal_max_correction, reliability 0 before any absolute heading.  robust=False: the seed's
     first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°
-    off, one pulse burst 10°).
+    off, one pulse burst 10°).  hard_iron: online estimate of the compass offsets X0/Y0 from the
+    field seen while turning (jaxmodel/hard_iron.py), started from the parameters' X0/Y0; off by default.
     """
 
     mode: str = "complementary"
@@ -53,6 +55,7 @@ class Config(NamedTuple):
     calibration: bool = True
     track: str = "closed_form"
     robust: bool = True
+    hard_iron: bool = False
 
 
 DEFAULT_CONFIG = Config()
@@ -124,6 +127,7 @@ class State(NamedTuple):
     kalman: _kalman.KalmanState
     guard: _guard.GuardState
     offset: _offset.OffsetState
+    hard_iron: _hard_iron.HardIronState  # online X0/Y0 (Config.hard_iron; else carried unchanged)
 
 
 class Outputs(NamedTuple):
@@ -163,7 +167,7 @@ def init_state(params) -> State:
         field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
-        offset=_offset.init_offset_state(params),
+        offset=_offset.init_offset_state(params), hard_iron=_hard_iron.init_hard_iron_state(params),
     )
 
 
@@ -251,7 +255,18 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     d_t, alpha = odo["d_t"], odo["alpha"]
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
-    h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
+    hard_iron = state.hard_iron
+    if config.hard_iron:  # offsets learned up to this sample; the first accepted fit restarts the heading and B_E
+        hard_iron, restart = _hard_iron.update(params, state.hard_iron, sample.compass_x, sample.compass_y, d_t,
+                                               alpha, sample.compass_unreliable_area < 0.5)
+        x0, y0 = _hard_iron.offsets(hard_iron)
+        h_c_raw, b_m, compass_ok = _compass.compass_heading(params._replace(X0=x0, Y0=y0), sample.compass_x,
+                                                            sample.compass_y)
+        state = state._replace(initialized=jnp.where(restart, 0.0, state.initialized),
+                               field_sum=jnp.where(restart, 0.0, state.field_sum),
+                               field_count=jnp.where(restart, 0.0, state.field_count))
+    else:
+        h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
     if robust:
         b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
     else:  # B_E: the parameter when given (> 0), else the running mean of |B| (kept in bin 0)
@@ -382,7 +397,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         f_delta=f_delta, heading=heading, e_w=e_w, e_c=e_c, sdd=sdd, factor=factor, delta_history=history,
         distance_since_F=distance_since_F, distance_filtered=distance_filtered, field_sum=field_sum,
         field_count=field_count, a=a, x=x, y=y, distance=state.distance + d_t, refine=refine_state,
-        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset,
+        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset, hard_iron=hard_iron,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,

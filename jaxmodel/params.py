@@ -103,6 +103,12 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_gate_sigma", 0.284, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),
     ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
     ParamSpec("field_memory_m", 5000.0, "m", "distance over which the learned B_E per heading forgets (hard-iron changes)"),
+    # --- online hard-iron estimate (Config.hard_iron, jaxmodel/hard_iron.py; our extension of FIG. 8A block 2)
+    ParamSpec("hard_iron_memory_m", 10000.0, "m", "Config.hard_iron: distance over which the circle fit of the field forgets (a changed offset is followed within about this)"),
+    ParamSpec("hard_iron_min_turn_deg", 120.0, "deg", "Config.hard_iron: a fit is accepted once its field samples spread as much as headings covering an arc of this width"),
+    ParamSpec("hard_iron_min_distance_m", 30.0, "m", "Config.hard_iron: and once the fit holds this many metres of samples"),
+    ParamSpec("hard_iron_gate", 0.15, "1", "Config.hard_iron: Cauchy weight 1/(1 + (e/(this r))^2) of a sample e off the accepted circle of radius r (anomalies)"),
+    ParamSpec("hard_iron_restart_fraction", 0.25, "1", "Config.hard_iron: the first accepted fit restarts the heading from the corrected compass when it moves X0/Y0 by more than this x r"),
     # --- left/right dpp calibration, EP 0619873 (jaxmodel/calibration.py) -----------------
     ParamSpec("cal_check_distance_m", 20.0, "m", "EP 0619873 claims 2-3: the count ratio is checked over windows of this distance"),
     ParamSpec("cal_ratio_bound", 0.01, "1", "EP 0619873 claims 2-3: bound on a window's |dD/AD| (current dpp) for the stretch to go on"),
@@ -218,7 +224,7 @@ POSITIVE_KEYS = (
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
     "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
-    "field_learn_gate", "field_memory_m")
+    "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
@@ -226,7 +232,8 @@ NON_NEGATIVE_KEYS = (
     "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
-    "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_turn_sigma", "filter_ec_weight")
+    "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
+    "hard_iron_min_distance_m", "hard_iron_restart_fraction")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""
 FRACTION_KEYS = ("refine_compass_bad_fraction", "cal_no_compass_weight")
 """Fractions and weights in [0, 1]."""
