@@ -29,6 +29,11 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
 * the variance P of the offset grows while the compass is rejected or missing, so the gate
   widens and a clean compass is taken back within metres; sqrt(P) is the heading bound behind
   ``heading_reliability``.
+* re-acquisition: a compass rejected for ``filter_reacquire_m`` metres in a row restarts the
+  filter from it, as the first compass sample does (FIG. 8B).  Anomalies, bridges and car parks
+  disturb it for tens to hundreds of metres; a longer disagreement means the wheels are wrong (a
+  rate that ran away under a 2.5 % tyre mismatch before the calibration caught it locked the
+  filter out of a clean compass for a whole highway drive, 105 deg RMSE; 2.7 deg with it).
 """
 
 from __future__ import annotations
@@ -48,7 +53,8 @@ UNINITIALIZED_BOUND = jnp.pi
 class OffsetFields(NamedTuple):
     """x = (delta, beta, c): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
     error (rad); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
-    averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample."""
+    averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
+    ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2)."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
@@ -61,6 +67,7 @@ class OffsetFields(NamedTuple):
     p22: jnp.ndarray
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
+    rejected_m: jnp.ndarray
 
 
 # One float64 vector, and the 3x3 algebra written out on its scalars: inside the vmapped scan,
@@ -74,7 +81,7 @@ def init_offset_state(params):
     return OffsetState.pack(OffsetFields(
         delta=z, beta=z, c=z, p00=deg(params.filter_sigma0_deg) ** 2, p01=z, p02=z,
         p11=jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2, p12=z,
-        p22=deg(params.filter_gm_sigma_deg) ** 2, disturbance=z, since_absolute=z))
+        p22=deg(params.filter_gm_sigma_deg) ** 2, disturbance=z, since_absolute=z, rejected_m=z))
 
 
 def start(params):
@@ -111,7 +118,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
         p11=f.p11 + q1,
         p12=phi * f.p12,
         p22=phi * phi * f.p22 + q2,
-        disturbance=f.disturbance, since_absolute=f.since_absolute + d_t))
+        disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok):
@@ -137,14 +144,24 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
     g0, g1, g2 = ph0 * inv, ph1 * inv, ph2 * inv
+    weight = 1.0 / (1.0 + z2 / gate2)
+    rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
     new = OffsetFields(
         delta=wrap(f.delta + g0 * nu), beta=f.beta + g1 * nu, c=f.c + g2 * nu,
         p00=f.p00 - g0 * ph0, p01=f.p01 - g0 * ph1, p02=f.p02 - g0 * ph2,
         p11=f.p11 - g1 * ph1, p12=f.p12 - g1 * ph2, p22=f.p22 - g2 * ph2,
-        disturbance=disturbance - (g0 + g2) * nu, since_absolute=jnp.zeros_like(f.since_absolute))
+        disturbance=disturbance - (g0 + g2) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
+        rejected_m=rejected_m)
+    # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
+    # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
+    # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
+    # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
+    restart = init_offset_state(params).fields()._replace(delta=wrap(delta_meas))
+    reacquire = rejected_m > params.filter_reacquire_m
+    new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
-    weight = jnp.where(ok, 1.0 / (1.0 + z2 / gate2), 0.0)
+    weight = jnp.where(ok, weight, 0.0)
     return out, weight
 
 

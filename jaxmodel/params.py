@@ -101,6 +101,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_check_m", 5.504, "m", "distance over which DELTA's agreement with the wheels is averaged (disturbance detection)"),
     ParamSpec("filter_check_sigma_deg", 0.1341, "deg", "expected spread of that average on a clean compass"),
     ParamSpec("filter_gate_sigma", 0.284, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),
+    ParamSpec("filter_reacquire_m", 1000.0, "m", "a compass rejected this many metres in a row restarts F-DELTA from it (re-acquisition after a lock-out)"),
     ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
     ParamSpec("field_memory_m", 5000.0, "m", "distance over which the learned B_E per heading forgets (hard-iron changes)"),
     # --- online hard-iron estimate (Config.hard_iron, jaxmodel/hard_iron.py; our extension of FIG. 8A block 2)
@@ -224,7 +225,7 @@ POSITIVE_KEYS = (
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
     "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
-    "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
+    "filter_reacquire_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
