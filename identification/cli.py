@@ -176,6 +176,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="robust: odometer guard in every mode, F-DELTA by a Kalman filter with a rate state (tyre "
                         "mismatch), B_E per heading, calibration up to 3 %% (docs/tuning.md); seed: US 4,734,863's "
                         "first-order F-DELTA as first tuned on the project's simulator, for comparison")
+    e.add_argument("--hard-iron", choices=("on", "off"), default="off",
+                   help="online estimate of the compass offsets X0/Y0 from the field seen while turning, started "
+                        "from the parameter file's X0/Y0 (jaxmodel/hard_iron.py; for a compass never calibrated: "
+                        "it converges once the drive has turned through about 120 deg, docs/real-data.md)")
 
     i = add("identify", "identify vehicle parameters by gradient descent",
             "Fits vehicle parameters to reference headings (column ref_heading_deg, degrees) of logged drives "

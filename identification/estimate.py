@@ -107,7 +107,8 @@ def main(args) -> int:
     params, _extra = checked_params(args.params)
     drive = read_drive(drive_path)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
-                             track=args.track, robust=getattr(args, "filter", "robust") == "robust")
+                             track=args.track, robust=getattr(args, "filter", "robust") == "robust",
+                             hard_iron=getattr(args, "hard_iron", "off") == "on")
     console.status(f"estimating {drive.n_samples} samples ({drive.metadata.get('duration_s', 0.0):.0f} s) "
                  f"of {drive_path} in mode {args.mode}")
     try:
