@@ -173,10 +173,16 @@ def run_comma_compass(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: in
                                           for k, row in rep["parameters"].items()},
                            "correlation": rep["correlation"]["matrix"], "warnings": rep["warnings"], "rmse_deg": {}}
     outs = {}
-    for name, p in (("uncalibrated", params), ("identified", fitted)):
+    # "online hard iron": the uncalibrated parameters with Config.hard_iron (jaxmodel/hard_iron.py), no identification.
+    for name, p, online in (("uncalibrated", params, False), ("identified", fitted, False),
+                            ("online hard iron", params, True)):
         for mode in ("compass", "odometer", "complementary"):
-            o = estimate_drive(p, drive, jaxmodel.Config(mode=mode))
-            outs[(name, mode)] = o
+            o = estimate_drive(p, drive, jaxmodel.Config(mode=mode, hard_iron=online))
+            if online:
+                res.setdefault("online_hard_iron", {})["heading_span_deg"] = round(float(np.ptp(np.unwrap(
+                    np.radians(ref)))) * 180.0 / np.pi, 2)
+            else:
+                outs[(name, mode)] = o
             res["rmse_deg"].setdefault(mode, {})[name] = {
                 "whole": round(heading_rmse_deg(o["heading_deg"], ref), 2),
                 "last_30s": round(heading_rmse_deg(o["heading_deg"][late], ref[late]), 2)}
