@@ -98,5 +98,7 @@ def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):
     young = field_weight < FIELD_PRIOR_M
     use = clean & (d_t > 0.0) & (near | young)
     inc = jnp.where(use, d_t * w, 0.0)
-    forget = jnp.exp(-inc / params.field_memory_m)
+    # A bin forgets over field_memory_m metres in proportion to its hat weight: one exp per sample
+    # rather than one per bin (the same for a weight of 0 or 1; a bin between forgets linearly).
+    forget = 1.0 - jnp.where(use, w, 0.0) * -jnp.expm1(-d_t / params.field_memory_m)
     return forget * field_sum + inc * b_m, forget * field_weight + inc
