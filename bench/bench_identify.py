@@ -20,7 +20,6 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -32,20 +31,15 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import jaxmodel as jm  # noqa: E402
-from identification.drive_log import read_drive, write_drive  # noqa: E402
+from bench._common import rmse_deg, simulated_bar_drives  # noqa: E402
+from identification.drive_log import read_drive  # noqa: E402
 from identification.estimate import estimate_drive  # noqa: E402
-from identification.simulate import simulate  # noqa: E402
 from jaxmodel.track import effective_track  # noqa: E402
 
 START = dict(P=0.125, B=2.70, T_F=1.55, a=1.0e-4)
 VEHICLE = dict(P=0.135, B=2.78, T_F=1.59, a=1.3e-4)   # +8 %, +3 %, +2.6 %, +30 %
 TRAIN = [("mixed", 1200.0), ("urban", 720.0), ("parking", 480.0)]  # 40 minutes
 HELD_OUT = [("mixed", 600.0), ("urban", 600.0)]
-
-
-def rmse_deg(heading_deg, ref_rad):
-    e = np.angle(np.exp(1j * (np.radians(heading_deg) - ref_rad)))
-    return float(np.degrees(np.sqrt(np.mean(e**2))))
 
 
 def main():
@@ -56,20 +50,8 @@ def main():
     ap.add_argument("--increment-s", default=None, help="passed to identify (default: identify's own)")
     args = ap.parse_args()
 
-    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="odocompass-bar-"))
-    work.mkdir(parents=True, exist_ok=True)
-    start = jm.make_params(START)
-    jm.save_params(work / "start.json", start)
-    true_params = jm.make_params(dict(jm.params_to_dict(start), **VEHICLE))
-    train, held = [], []
-    for i, (sc, dur) in enumerate(TRAIN):
-        path = work / f"train_{sc}.csv"
-        write_drive(path, simulate(sc, dur, seed=args.seed * 100 + i, params=VEHICLE)[0])
-        train.append(path)
-    for i, (sc, dur) in enumerate(HELD_OUT):
-        path = work / f"heldout_{sc}.csv"
-        write_drive(path, simulate(sc, dur, seed=args.seed * 100 + 50 + i, params=VEHICLE)[0])
-        held.append(path)
+    bar = simulated_bar_drives(args.keep, "odocompass-bar-", START, VEHICLE, TRAIN, HELD_OUT, args.seed)
+    work, start, true_params, train, held = bar.work, bar.start, bar.true_params, bar.train, bar.held
     print(f"vehicle {VEHICLE} vs start file {START}; training {sum(d for _, d in TRAIN) / 60:.0f} min "
           f"({', '.join(f'{s} {d / 60:.0f} min' for s, d in TRAIN)}), held out {', '.join(s for s, _ in HELD_OUT)}")
 

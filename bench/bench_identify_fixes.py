@@ -21,7 +21,6 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -33,10 +32,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import jaxmodel as jm  # noqa: E402
+from bench._common import rmse_deg, simulated_bar_drives  # noqa: E402
 from identification.compass_fit import soft_iron_table  # noqa: E402
-from identification.drive_log import read_drive, write_drive  # noqa: E402
+from identification.drive_log import read_drive  # noqa: E402
 from identification.estimate import estimate_drive  # noqa: E402
-from identification.simulate import simulate  # noqa: E402
 
 START = dict(P=0.125, B=2.70, T_F=1.55, a=1.0e-4)
 VEHICLE = dict(P=0.135, B=2.78, T_F=1.59, a=1.3e-4, X0=3.0, Y0=-2.0,
@@ -46,11 +45,6 @@ HELD_OUT = [("mixed", 600.0)]
 FIT = "P,B,T_F,a,T_C,D_N,X0,Y0,deviation_deg"
 
 
-def rmse_deg(heading_deg, ref_rad):
-    e = np.angle(np.exp(1j * (np.radians(heading_deg) - ref_rad)))
-    return float(np.degrees(np.sqrt(np.mean(e**2))))
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fit", default=FIT)
@@ -58,22 +52,9 @@ def main():
     ap.add_argument("--keep", default=None, help="keep drives, fitted file and plots in this folder")
     args = ap.parse_args()
 
-    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="odocompass-fixes-bar-"))
-    work.mkdir(parents=True, exist_ok=True)
-    start = jm.make_params(START)
-    jm.save_params(work / "start.json", start)
-    true_params = jm.make_params(dict(jm.params_to_dict(start), **VEHICLE))
-    train, held = [], []
-    for i, (sc, dur) in enumerate(TRAIN):
-        path = work / f"train_{sc}.csv"
-        cols = simulate(sc, dur, seed=args.seed * 100 + i, params=VEHICLE, fixes_sigma=3.0)[0]
-        cols.pop("ref_heading_deg")
-        write_drive(path, cols)
-        train.append(path)
-    for i, (sc, dur) in enumerate(HELD_OUT):
-        path = work / f"heldout_{sc}.csv"
-        write_drive(path, simulate(sc, dur, seed=args.seed * 100 + 50 + i, params=VEHICLE, fixes_sigma=3.0)[0])
-        held.append(path)
+    bar = simulated_bar_drives(args.keep, "odocompass-fixes-bar-", START, VEHICLE, TRAIN, HELD_OUT, args.seed,
+                               fixes_sigma=3.0, train_reference=False)
+    work, start, true_params, train, held = bar.work, bar.start, bar.true_params, bar.train, bar.held
 
     out = work / "fitted.json"
     cmd = [str(ROOT / ".venv" / "bin" / "odocompass"), "identify", *map(str, train), "--params", str(work / "start.json"),
