@@ -7,7 +7,9 @@ the spectral characteristics of the errors" (col. 8).  Its own model of the whee
 We filter exactly that model, per travelled metre:
 
     offset  delta_{k+1} = delta_k + beta_k AD_k            (AD signed: reversing undoes it)
-    rate    beta_{k+1}  = beta_k + w_beta                  (left/right tyre mismatch, slowly varying)
+    rate    beta_{k+1}  = phi_b beta_k + w_beta            (left/right tyre mismatch, slowly varying;
+                                                          phi_b = 1, or exp(-|AD|/filter_rate_corr_m)
+                                                          while no absolute heading arrives)
     compass c_{k+1}     = phi c_k + w_c, phi = exp(-|AD|/filter_gm_m)   (anomalies, dip: coloured)
     DELTA_k = delta_k + c_k + white compass error
 
@@ -99,7 +101,7 @@ def covariance(fs):
 def predict(params, fs, ad_signed, d_t, alpha):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
 
-    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0], [0, 1, 0], [0, 0, phi]].  The coloured
+    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0], [0, phi_b, 0], [0, 0, phi]].  The coloured
     compass error is first-order Gauss-Markov over filter_gm_m metres of stationary sigma
     filter_gm_sigma_deg (anomalies and dip errors are fixed in space, so in distance):
     phi = exp(-|AD| / filter_gm_m).
@@ -107,16 +109,20 @@ def predict(params, fs, ad_signed, d_t, alpha):
     f = fs.fields()
     a = ad_signed
     phi = jnp.exp(-d_t / params.filter_gm_m)
+    # Without an absolute heading the rate fades over filter_rate_corr_m metres: what it holds
+    # beyond the calibration's correction is learned from a noisy compass, and extrapolating it
+    # through a dropout of kilometres turns the heading further off than the wheels alone.
+    phi_b = jnp.where(f.since_absolute > 0.0, jnp.exp(-d_t / params.filter_rate_corr_m), 1.0)
     q0 = params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2
     q1 = params.filter_rate_psd * d_t
     q2 = deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi)
     return OffsetState.pack(OffsetFields(
-        delta=f.delta + a * f.beta, beta=f.beta, c=phi * f.c,
+        delta=f.delta + a * f.beta, beta=phi_b * f.beta, c=phi * f.c,
         p00=f.p00 + 2.0 * a * f.p01 + a * a * f.p11 + q0,
-        p01=f.p01 + a * f.p11,
+        p01=phi_b * (f.p01 + a * f.p11),
         p02=phi * (f.p02 + a * f.p12),
-        p11=f.p11 + q1,
-        p12=phi * f.p12,
+        p11=phi_b * phi_b * f.p11 + q1,
+        p12=phi_b * phi * f.p12,
         p22=phi * phi * f.p22 + q2,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 

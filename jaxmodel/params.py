@@ -90,6 +90,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     # --- robust F-DELTA filter (jaxmodel/offset_filter.py; FIG. 8G's filter, fitted in docs/tuning.md) ---
     ParamSpec("filter_offset_psd", 3.939e-08, "rad2/m", "random walk of the wheel heading offset per metre driven"),
     ParamSpec("filter_rate_psd", 3.695e-14, "rad2/m3", "random walk of the offset's rate per metre (tyre wear, load)"),
+    ParamSpec("filter_rate_corr_m", 300.0, "m", "without an absolute heading the offset's rate fades over this distance (not extrapolated through long compass dropouts)"),
     ParamSpec("filter_rate_sigma0", 0.003784, "rad/m", "initial sigma of the offset's rate (left/right tyre mismatch / track)"),
     ParamSpec("filter_sigma0_deg", 180.0, "deg", "initial sigma of F-DELTA when the first compass sample starts the heading"),
     ParamSpec("filter_turn_sigma", 0.1177, "1", "relative sigma of a wheel turn as offset noise: adds (this x alpha)^2 to F-DELTA's variance"),
@@ -225,7 +226,7 @@ POSITIVE_KEYS = (
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
     "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
-    "filter_reacquire_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
+    "filter_reacquire_m", "filter_rate_corr_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
