@@ -29,6 +29,8 @@ the deviation a 36-entry table over A (10° apart, interpolated).  Identified fr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 DEVIATION_TABLE_SIZE = 36
@@ -77,3 +79,87 @@ def soft_iron_table(amplitude_deg: float = 1.0, phase_deg: float = 30.0, third_d
     a = np.radians(np.arange(DEVIATION_TABLE_SIZE) * (360.0 / DEVIATION_TABLE_SIZE))
     ph = np.radians(phase_deg)
     return amplitude_deg * np.cos(2.0 * a - ph) + third_deg * np.sin(3.0 * a)
+
+
+# ----------------------------------------------------------------------------------------------
+# the hard-iron offset from the field circle (no reference needed)
+
+FIELD_CIRCLE_CORRELATION_M = 250.0
+"""Travelled distance over which the raw field's errors (road grade and body roll leaking the
+vertical field, anomalies) are taken as correlated: the circle fit's least-squares covariance is
+scaled by (samples used) / (distance / this), so that it counts one independent error per this
+many metres (chosen on simulation seeds 3-7, docs/identification.md)."""
+
+
+FIELD_CIRCLE_MIN_ARC_DEG = 120.0
+"""The field directions around the fitted centre must span at least this arc (the mean resultant
+length of a uniform arc of that width), as ``hard_iron_min_turn_deg`` of the online estimate."""
+
+
+def field_circle(inputs, mask, params, correlation_m: float = FIELD_CIRCLE_CORRELATION_M,
+                 iterations: int = 20):
+    """The centre (X0, Y0) of the circle the raw horizontal field draws while the vehicle turns, and
+    its covariance: ``(centre (2,), covariance (2, 2), info dict)`` or None when there is no usable
+    circle (too few samples, a fit that does not converge).
+
+    The horizontal field lies on a circle around the hard-iron offset whatever the reference
+    (US 4,734,863 calibrates X0, Y0 from a full turn; jaxmodel/hard_iron.py does it online).  Moving
+    samples outside map-flagged unreliable areas, every drive of the batch pooled (one sensor, one
+    offset): an algebraic (Kåsa) fit starts a geometric fit, |B - c| - r, by Gauss-Newton with Cauchy
+    weights at twice the residuals' MAD (anomalies); None unless the field directions around the
+    centre span ``FIELD_CIRCLE_MIN_ARC_DEG``.  Its covariance sigma² (JᵀWJ)⁻¹ is inflated to
+    one independent error per ``correlation_m`` of travel; on a drive that never turns it is huge
+    across the unseen direction, so the circle then says nothing there."""
+    from .loss import travelled_distance
+
+    cx = np.asarray(inputs.compass_x, dtype=np.float64)
+    cy = np.asarray(inputs.compass_y, dtype=np.float64)
+    dist = travelled_distance(inputs, params)
+    ds = np.diff(dist, axis=-1, prepend=dist[..., :1])
+    ok = ((np.asarray(mask) > 0.5) & np.isfinite(cx) & np.isfinite(cy) & (ds > 0)
+          & (np.asarray(inputs.compass_unreliable_area) < 0.5))
+    x, y = cx[ok], cy[ok]
+    distance = float(np.sum(ds[ok]))
+    if x.size < 10 or not distance > 0:
+        return None
+    a = np.stack([x, y, np.ones_like(x)], axis=1)
+    k, *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+    c = np.array([k[0] / 2.0, k[1] / 2.0])
+    r = math.sqrt(max(k[2] + c @ c, 1e-12))
+    w = np.ones_like(x)
+    for _ in range(iterations):
+        dx, dy = x - c[0], y - c[1]
+        d = np.maximum(np.hypot(dx, dy), 1e-9)
+        res = d - r
+        scale = 2.0 * 1.4826 * float(np.median(np.abs(res))) + 1e-9
+        w = 1.0 / (1.0 + (res / scale) ** 2)
+        jac = np.stack([-dx / d, -dy / d, -np.ones_like(d)], axis=1)
+        sw = np.sqrt(w)
+        step = np.linalg.lstsq(jac * sw[:, None], -res * sw, rcond=None)[0]
+        c, r = c + step[:2], r + step[2]
+        if not (np.all(np.isfinite(c)) and math.isfinite(r) and r > 0):
+            return None
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    dx, dy = x - c[0], y - c[1]
+    d = np.maximum(np.hypot(dx, dy), 1e-9)
+    # a circle is only determined by an arc of field directions (a short arc fits a small circle as
+    # well as the true one): as the online estimate, at least FIELD_CIRCLE_MIN_ARC_DEG around the centre
+    resultant = float(np.hypot(np.sum(w * dx / d), np.sum(w * dy / d)) / np.sum(w))
+    half = math.radians(FIELD_CIRCLE_MIN_ARC_DEG) / 2.0
+    if resultant > math.sin(half) / half:
+        return None
+    res = d - r
+    jac = np.stack([-dx / d, -dy / d, -np.ones_like(d)], axis=1)
+    sigma2 = float(np.sum(w * res * res) / max(np.sum(w) - 3.0, 1.0))
+    info_m = (jac * w[:, None]).T @ jac
+    try:
+        cov3 = sigma2 * np.linalg.inv(info_m)
+    except np.linalg.LinAlgError:
+        return None
+    n_eff = max(distance / float(correlation_m), 1.0)
+    cov = cov3[:2, :2] * (x.size / n_eff)
+    if not np.all(np.isfinite(cov)):
+        return None
+    return c, cov, {"radius": float(r), "samples": int(x.size), "distance_m": distance,
+                    "residual_ut": math.sqrt(sigma2), "correlation_m": float(correlation_m)}

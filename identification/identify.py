@@ -216,12 +216,45 @@ def _fit_stage(fun, gn, space, use_forward, max_iter, gtol, ftol, tick):
     return res, res_final, ratio, se, corr, signal, status, frozen
 
 
+def _with_circle(fun, space, circle):
+    """``fun`` (z -> (F, grad, [GN Hessian, ...])) plus the field circle's measurement of the hard-iron
+    offset, ½ (theta - c)ᵀ Σ⁻¹ (theta - c) over (X0, Y0), exact in z (their transform is the identity:
+    theta = u0 + s z).  None: ``fun`` unchanged (no circle, or X0 and Y0 not both in this stage)."""
+    if circle is None or not {"X0", "Y0"} <= set(space.labels):
+        return fun
+    idx = np.array([space.labels.index("X0"), space.labels.index("Y0")])
+    centre, cov = circle[0], circle[1]
+    prec = np.linalg.inv(cov)
+    sc = np.asarray(space.s, dtype=np.float64)[idx]
+    u0 = np.asarray(space.u0, dtype=np.float64)[idx]
+    a = sc[:, None] * prec * sc[None, :]             # Hessian in z
+    dim = space.dim
+
+    def wrapped(z):
+        out = fun(z)
+        zi = np.asarray(z, dtype=np.float64)[idx]
+        dev = u0 + sc * zi - centre
+        value = out[0] + 0.5 * float(dev @ prec @ dev)
+        g_add = np.zeros(dim)
+        g_add[idx] = sc * (prec @ dev)
+        grad = np.asarray(out[1], dtype=np.float64) + g_add
+        rest = list(out[2:])
+        if rest:
+            h = np.array(rest[0], dtype=np.float64)
+            h[np.ix_(idx, idx)] += a
+            rest[0] = h
+        return (value, grad, *rest)
+
+    return wrapped
+
+
 def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), mode: str = "odometer",
              max_iter: int = 400, progress: bool = True, *, config=None, refine_a: bool = True,
              calibration: bool = False, track: str = "closed_form", prior_std: Mapping[str, float] | None = None,
              decorrelation_s: float = L.DEFAULT_DECORRELATION_S, increment_s: float = DEFAULT_INCREMENT_S,
              increment_m: float = 0.0, reference: str = "auto", fix_settings: FX.FixSettings | None = None,
-             gtol: float = 1e-3, ftol: float = 1e-7, derivatives: str = "auto", plots_dir=None):
+             gtol: float = 1e-3, ftol: float = 1e-7, derivatives: str = "auto", plots_dir=None,
+             field_circle: str = "auto"):
     """Identify ``fit`` from ``train_drives``; returns (fitted Params, report dict).  See the module docstring.
 
     ``config`` (a jaxmodel.Config) overrides refine_a/calibration/track; its mode is ignored
@@ -265,6 +298,14 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     evaluator = Evaluator(all_drives, eval_config, fixes=any(FX.has_fixes(d) for d in all_drives))
     ev_before = evaluator(start)
 
+    circle = None
+    if field_circle not in ("auto", "on", "off"):
+        raise OdoCompassError(f"field_circle must be 'auto', 'on' or 'off', got {field_circle!r}")
+    if ("X0" in keys and "Y0" in keys
+            and (field_circle == "on" or (field_circle == "auto" and reference == "fixes"))):
+        from .compass_fit import field_circle as _field_circle
+
+        circle = _field_circle(inputs, sample_mask, start)
     current = start
     param_rows: dict[str, dict] = {}
     stage_reports = []
@@ -281,8 +322,8 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
             problem, loss_text = _heading_problem(stage, space, current, inputs, ref, mask, cfg, start,
                                                   decorrelation_s)
         use_forward = derivatives == "forward" or (derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
-        gn = L.forward_value_grad_gn(problem)
-        fun = gn if use_forward else L.reverse_value_grad(problem, checkpoint=True)
+        gn = _with_circle(L.forward_value_grad_gn(problem), space, circle)
+        fun = gn if use_forward else _with_circle(L.reverse_value_grad(problem, checkpoint=True), space, circle)
         bar = _progress(progress, max_iter, f"identify [{stage.name}] {','.join(stage.keys)}")
 
         def tick(it, value, gmax, bar=bar):
@@ -328,6 +369,9 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
             "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen)],
             "wall_time_s": time.perf_counter() - t_stage,
         })
+        if circle is not None and {"X0", "Y0"} <= set(space.labels):
+            stage_reports[-1]["loss"] += (" + the field circle's (X0, Y0) as a measurement "
+                                          "(compass_fit.field_circle, report.field_circle)")
         if not res_final.converged:
             warnings.append(f"stage '{stage.name}' did not converge: {res_final.reason}")
 
@@ -368,6 +412,11 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                            "fix_sigma_m": fix_settings.fix_sigma_m,
                            "heading_floor_deg": fix_settings.heading_floor_deg, "min_dist_m": fix_settings.min_dist_m,
                            "straight_deg": fix_settings.straight_deg}
+    if circle is not None:
+        report["field_circle"] = {"X0": float(circle[0][0]), "Y0": float(circle[0][1]),
+                                  "std_error": [float(v) for v in np.sqrt(np.diag(circle[1]))],
+                                  "correlation": float(circle[1][0, 1] / math.sqrt(circle[1][0, 0] * circle[1][1, 1])),
+                                  **circle[2]}
     if "deviation_deg" in keys:
         report["deviation_deg"] = {"before": [float(v) for v in np.asarray(start.deviation_deg)],
                                    "after": [float(v) for v in np.asarray(fitted.deviation_deg)],

@@ -148,3 +148,45 @@ def test_recovers_vehicle_and_compass_from_fixes_only():
     assert abs(float(fitted.X0) - 3.0) < 0.5 and abs(float(fitted.Y0) + 2.0) < 0.5
     dev_err = np.asarray(fitted.deviation_deg) - np.asarray(truth["deviation_deg"])
     assert np.max(np.abs(dev_err)) < 1.0  # measured 0.80 deg on these 20 minutes; 0.23-0.49 deg on the bar's 40
+
+
+def _circle_inputs(arc_deg, offset=(3.0, -2.0), n=2000, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.1
+    ang = np.radians(np.linspace(0.0, arc_deg, n))
+    pulses = np.arange(n) * 10.0  # moving throughout
+    cx = offset[0] + 20.0 * np.cos(ang) + 0.3 * rng.standard_normal(n)
+    cy = offset[1] + 20.0 * np.sin(ang) + 0.3 * rng.standard_normal(n)
+    cx[::97] += 15.0  # anomalies: the Cauchy weights must ignore them
+    return jm.make_inputs(t[None], pulses[None], pulses[None], cx[None], cy[None]), np.ones((1, n))
+
+
+def test_field_circle_finds_the_offset_and_says_nothing_without_turns():
+    from identification.compass_fit import field_circle
+
+    inputs, mask = _circle_inputs(720.0)
+    c, cov, info = field_circle(inputs, mask, jm.make_params())
+    assert np.max(np.abs(c - np.array([3.0, -2.0]))) < 0.05 and abs(info["radius"] - 20.0) < 0.05
+    assert np.all(np.sqrt(np.diag(cov)) < 0.5)
+    inputs, mask = _circle_inputs(2.0)  # a straight drive: 2 degrees of heading
+    out = field_circle(inputs, mask, jm.make_params())
+    assert out is None or np.max(np.sqrt(np.linalg.eigvalsh(out[1]))) > 20.0  # no information across the arc
+
+
+def test_field_circle_term_is_exact_in_z():
+    """identify adds the circle as ½ (theta - c)ᵀ Σ⁻¹ (theta - c) over X0, Y0: value, gradient and
+    Hessian of the wrapper against finite differences, other coordinates untouched."""
+    from identification.identify import _with_circle
+
+    space = L.make_space(("T_F", "X0", "Y0"), jm.make_params(X0=0.5, Y0=-0.5))
+    cov = np.array([[0.04, 0.01], [0.01, 0.09]])
+    fun = _with_circle(lambda z: (0.0, np.zeros(3), np.eye(3)), space, (np.array([3.0, -2.0]), cov, {}))
+    z = np.array([0.3, 0.2, -0.4])
+    value, grad, hess = fun(z)
+    h = 1e-6
+    fd = np.array([(fun(z + h * e)[0] - fun(z - h * e)[0]) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-9)
+    fdh = np.array([(fun(z + h * e)[1] - fun(z - h * e)[1]) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(hess - np.eye(3), fdh, rtol=1e-6, atol=1e-6)
+    assert grad[0] == 0.0 and np.all(hess[0] == np.eye(3)[0])
+    assert _with_circle(fun, L.make_space(("T_F", "X0"), jm.make_params()), (np.zeros(2), cov, {})) is fun
