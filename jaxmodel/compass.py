@@ -17,16 +17,17 @@ MAX_FIELD = 1e100
 def deviation(raw_heading, deviation_deg):
     """Deviation (rad) at raw heading A, periodic linear interpolation of the 36-entry table (FIG. 8A block 4).
 
-    Written as a sum of hat functions rather than a gather: one fused elementwise kernel,
-    measurably cheaper than two gathers inside a vmapped scan on XLA:CPU.
+    Between the two table entries around A: (1 - f) dev[i] + f dev[i + 1 mod 36], u = A / 10 deg,
+    i = floor(u), f = u - i.
     """
     n = DEVIATION_TABLE_SIZE
-    u = jnp.mod(raw_heading, 2.0 * jnp.pi) / deg(360.0 / n)  # in [0, n)
-    nodes = jnp.arange(n, dtype=jnp.float64)
-    distance = jnp.abs(jnp.expand_dims(u, -1) - nodes)
-    distance = jnp.minimum(distance, n - distance)  # periodic
-    weights = jnp.maximum(1.0 - distance, 0.0)
-    return deg(jnp.sum(weights * deviation_deg, axis=-1))
+    u = jnp.mod(raw_heading, 2.0 * jnp.pi) / deg(360.0 / n)  # in [0, n]
+    i = jnp.clip(jnp.floor(u), 0.0, n - 1.0)
+    f = u - i
+    i0 = i.astype(jnp.int32)
+    i1 = jnp.where(i0 == n - 1, 0, i0 + 1)
+    table = jnp.asarray(deviation_deg, jnp.float64)
+    return deg(table[..., i0] * (1.0 - f) + table[..., i1] * f)
 
 
 def compass_heading(params, compass_x, compass_y):
