@@ -9,6 +9,7 @@ compiles all of them.  It holds no Python, so it is stepped in this process.
 
 from __future__ import annotations
 
+import atexit
 import functools
 import json
 import math
@@ -38,6 +39,7 @@ def native_fmu() -> Path:
     from fmu.native_fmu import build_native_fmu
 
     d = Path(tempfile.mkdtemp(prefix="odocompass_test_native_"))
+    atexit.register(shutil.rmtree, d, True)  # the session's FMU; nothing left behind in the temp folder
     return build_native_fmu(d / "OdoCompassNative.fmu", CUSTOM, configs=TEST_CONFIGS)
 
 
