@@ -18,7 +18,8 @@ def deviation(raw_heading, deviation_deg):
     """Deviation (rad) at raw heading A, periodic linear interpolation of the 36-entry table (FIG. 8A block 4).
 
     Between the two table entries around A: (1 - f) dev[i] + f dev[i + 1 mod 36], u = A / 10 deg,
-    i = floor(u), f = u - i.
+    i = floor(u), f = u - i.  Read at two entries rather than as a sum of 36 hat functions: the
+    native FMU's step is 15 % shorter (C master); XLA:CPU is a few per cent slower with the gather.
     """
     n = DEVIATION_TABLE_SIZE
     u = jnp.mod(raw_heading, 2.0 * jnp.pi) / deg(360.0 / n)  # in [0, n]
@@ -98,8 +99,9 @@ def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):
     near = jnp.abs(safe_div(b_m - b_e, b_e, fallback=1.0)) < params.field_learn_gate
     young = field_weight < FIELD_PRIOR_M
     use = clean & (d_t > 0.0) & (near | young)
-    inc = jnp.where(use, d_t * w, 0.0)
+    w = jnp.where(use, w, 0.0)
+    inc = d_t * w
     # A bin forgets over field_memory_m metres in proportion to its hat weight: one exp per sample
     # rather than one per bin (the same for a weight of 0 or 1; a bin between forgets linearly).
-    forget = 1.0 - jnp.where(use, w, 0.0) * -jnp.expm1(-d_t / params.field_memory_m)
+    forget = 1.0 - w * -jnp.expm1(-d_t / params.field_memory_m)
     return forget * field_sum + inc * b_m, forget * field_weight + inc

@@ -91,13 +91,6 @@ def start(params):
     return init_offset_state(params)
 
 
-def covariance(fs):
-    """P (..., 3, 3) of (delta, beta, c), from the packed upper triangle."""
-    f = fs.fields()
-    rows = [[f.p00, f.p01, f.p02], [f.p01, f.p11, f.p12], [f.p02, f.p12, f.p22]]
-    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
-
-
 def predict(params, fs, ad_signed, d_t, alpha):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
 
@@ -162,7 +155,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
-    restart = init_offset_state(params).fields()._replace(delta=wrap(delta_meas))
+    restart = start(params).fields()._replace(delta=wrap(delta_meas))
     reacquire = rejected_m > params.filter_reacquire_m
     new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
