@@ -1,14 +1,15 @@
 """Build the project's FMUs with pythonfmu: ``odocompass build-fmu`` (SPEC §5) and the vehicle FMU.
 
 ``build_estimator(out, params)`` stages ``fmu/OdoCompass.py`` with a bundle
-(``resources/odocompass_bundle/``: a private copy of ``jaxmodel``, ``engine.py``,
-``jaxpr_lower.py``, ``fmi_support.py`` and ``manifest.json``).  The manifest lists every FMU
-variable with its unit, description and start value, taken from ``jaxmodel``: the parameters
-iterate ``jaxmodel.params.PARAMETER_TABLE`` (``deviation_deg``, a 36-entry table, becomes
-``deviation_deg_0`` ... ``deviation_deg_35``, the entries at raw headings 0, 10, ..., 350 deg;
-``sensor_axle`` is a String parameter), the inputs are ``jaxmodel.Inputs`` (``time_s`` comes from
-the communication time) and the outputs ``jaxmodel.Outputs``.  Start values are the given
-parameters (an identified file works directly).
+(``resources/odocompass_bundle/``: a private copy of ``jaxmodel``, ``engine.py``, the lowering
+(``jaxpr_lower.py``, ``lowered_code.py``, ``lowering_runtime.py``), ``fmi_support.py`` and
+``manifest.json``).  The manifest lists every FMU variable with its unit, description and start
+value, taken from ``jaxmodel``: the parameters iterate ``jaxmodel.params.PARAMETER_TABLE``
+(``deviation_deg``, a 36-entry table, becomes ``deviation_deg_0`` ... ``deviation_deg_35``, the
+entries at raw headings 0, 10, ..., 350 deg; ``sensor_axle`` is a String parameter), the inputs
+are ``jaxmodel.Inputs`` (``time_s`` comes from the communication time) and the outputs
+``jaxmodel.Outputs``.  Start values are the given parameters (an identified file works
+directly).
 
 ``build_vehicle(out, params)`` stages ``fmu/VehicleSensors.py`` with ``identification/sensors.py``.
 
@@ -36,7 +37,9 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 ESTIMATOR_SCRIPT = HERE / "OdoCompass.py"
 VEHICLE_SCRIPT = HERE / "VehicleSensors.py"
-BUNDLED = ("engine.py", "jaxpr_lower.py", "fmi_support.py", "model_description.py")
+# the jaxpr lowering: jaxpr_lower.py and the two modules it imports (engine.Engine.modules loads them)
+LOWERING = ("jaxpr_lower.py", "lowered_code.py", "lowering_runtime.py")
+BUNDLED = ("engine.py", *LOWERING, "fmi_support.py", "model_description.py")
 
 MODEL_OPTIONS = dict(
     needsExecutionTool=True,  # a Python interpreter with jax, numpy (and pythonfmu's runtime)

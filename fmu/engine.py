@@ -175,8 +175,10 @@ class Engine:
                     self._jm = load_private_module(f"_odocompass_jaxmodel_{self.bundle_id}",
                                                    self.bundle_dir / "jaxmodel" / "__init__.py",
                                                    package_dir=self.bundle_dir / "jaxmodel")
+                # a package over the bundle folder: its relative imports (lowered_code,
+                # lowering_runtime) load the bundle's copies, under private names too
                 self._lower = load_private_module(f"_odocompass_jaxpr_lower_{self.bundle_id}",
-                                                  self.bundle_dir / "jaxpr_lower.py")
+                                                  self.bundle_dir / "jaxpr_lower.py", package_dir=self.bundle_dir)
             return self._jax, self._jm, self._lower
 
     # -- parameters -------------------------------------------------------------------------

@@ -210,7 +210,7 @@ def build_native_fmu(out: str | Path = "build/OdoCompassNative.fmu", params=None
                      configs: Iterable[Mapping[str, Any]] | None = None, jobs: int | None = None,
                      check: bool = True) -> Path:
     """Build the Python-free FMU; ``configs`` restricts the compiled configurations (default: all)."""
-    from .build import _compiler, _documentation, _params_dict, _validate
+    from .build import LOWERING, _compiler, _documentation, _params_dict, _validate
     from .engine import Engine
 
     values = _params_dict(params)
@@ -237,7 +237,8 @@ def build_native_fmu(out: str | Path = "build/OdoCompassNative.fmu", params=None
         bundle.mkdir()
         shutil.copytree(Path(jm.__file__).resolve().parent, bundle / "jaxmodel",
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-        shutil.copy2(HERE / "jaxpr_lower.py", bundle / "jaxpr_lower.py")
+        for name in LOWERING:
+            shutil.copy2(HERE / name, bundle / name)
         eng = Engine(bundle, "native_" + uuid.uuid4().hex[:12])
         _, bjm, lower = eng.modules()
         if eng_layout_mismatch(layout, eng, values):
