@@ -231,6 +231,7 @@ def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900
     if condition == "glitches":
         unwrapped = [np.concatenate([[c[0]], c[0] + np.cumsum((np.diff(c) + 32768) % 65536 - 32768)])
                      for c in (left, right)]
+        notes["pulses_without_glitches"] = (left, right)
         glitch_time = _glitch(rng, unwrapped[0], unwrapped[1], t, np.asarray(truth["speed_mps"]))
         left, right = unwrapped[0] % 65536, unwrapped[1] % 65536
     elif condition == "wrong_modulus":
@@ -239,6 +240,16 @@ def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900
     columns["left_pulses"], columns["right_pulses"] = left, right
     truth_params = dict(truth["params"])
     return ScenarioDrive(scenario, condition, int(seed), columns, truth, truth_params, glitch_time, notes)
+
+
+def without_glitches(drive: ScenarioDrive) -> ScenarioDrive:
+    """The glitched drive with its counters as they were before the glitches: the same compass
+    samples, noise included, so that the difference of the two is the glitches' alone."""
+    left, right = drive.notes["pulses_without_glitches"]
+    columns = {**drive.columns, "left_pulses": left, "right_pulses": right}
+    notes = {k: v for k, v in drive.notes.items() if k != "pulses_without_glitches"}
+    return ScenarioDrive(drive.scenario, "glitches_removed", drive.seed, columns, drive.truth, drive.params,
+                         drive.glitch_time_s, notes)
 
 
 def project_drive(scenario: str, seed: int, duration_s: float = 900.0) -> ScenarioDrive:

@@ -42,7 +42,7 @@ class Config(NamedTuple):
     (eq. 9-13).  calibration: left/right dpp calibration (EP 0619873).  track: 'closed_form'
     (eq. 14) or 'table' (claims 15-16).  robust (the default, issue 10): the odometer guard
     of jaxmodel/plausibility.py in every mode, F-DELTA by the Kalman filter of
-    jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error), B_E per heading, FIG. 8E before 8F, calibration that captures up to
+    jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error, turn scale error), B_E per heading, FIG. 8E before 8F, calibration that captures up to
     cal_max_correction, reliability 0 before any absolute heading.  robust=False: the seed's
     first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°

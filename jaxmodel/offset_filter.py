@@ -1,4 +1,4 @@
-"""F-DELTA as a robust three-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
+"""F-DELTA as a robust four-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
 
 The seed low-passes DELTA = H_C - H_W with the distance constant T_C = D_N / (D_T F) and says
 the filter "can be implemented ... in a variety of other filtering relationships depending on
@@ -6,19 +6,28 @@ the spectral characteristics of the errors" (col. 8).  Its own model of the whee
 "random start heading R" plus "drift D" that "changes slowly" (eq. 1-5): an offset and a rate.
 We filter exactly that model, per travelled metre:
 
-    offset  delta_{k+1} = delta_k + beta_k AD_k            (AD signed: reversing undoes it)
+    offset  delta_{k+1} = delta_k + beta_k AD_k + k_k alpha_k
+                                                         (AD signed: reversing undoes it)
     rate    beta_{k+1}  = phi_b beta_k + w_beta            (left/right tyre mismatch, slowly varying;
                                                           phi_b = 1, or exp(-|AD|/filter_rate_corr_m)
                                                           while no absolute heading arrives)
     compass c_{k+1}     = phi c_k + w_c, phi = exp(-|AD|/filter_gm_m)   (anomalies, dip: coloured)
+    scale   k_{k+1}     = k_k + w_k                     (the wheel turn alpha's relative error)
     DELTA_k = delta_k + c_k + white compass error
 
 with process noise ``filter_offset_psd`` per metre plus (``filter_turn_sigma`` alpha)^2 per turn on
 the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
 ``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C) counted once per
 ``filter_compass_corr_m`` metres, divided by the seed's factor F (FIG. 8E: F > 1 trusts the compass
-more).  It is a three-state Kalman filter; with beta held at 0 and a fixed gain it is the seed's
-first-order filter.
+more), ``filter_scale_psd`` per radian turned on k.  It is a four-state Kalman filter; with beta
+and k held at 0 and a fixed gain it is the seed's first-order filter.
+
+The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B, T_F, a or dpp
+are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
+turn then moves F-DELTA by k alpha, and with k as white turn noise alone the filter chased those
+jumps through its rate state (nominal parameters on the tuning drives: 20 deg RMSE; 3.7 deg with
+k, prior sigma ``filter_scale_sigma0`` 0.05; docs/tuning.md).  Off by default (sigma0 0): with
+exact parameters it costs 5-11 %, and one tuning-side 2.5 % mismatch drive went 1 -> 9.7 deg.
 
 Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degree spikes):
 
@@ -53,26 +62,31 @@ UNINITIALIZED_BOUND = jnp.pi
 
 
 class OffsetFields(NamedTuple):
-    """x = (delta, beta, c): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
-    error (rad); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
+    """x = (delta, beta, c, k): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
+    error (rad), the wheel turn's relative scale error (1); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
     averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
     ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2)."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
     c: jnp.ndarray
+    k: jnp.ndarray
     p00: jnp.ndarray
     p01: jnp.ndarray
     p02: jnp.ndarray
+    p03: jnp.ndarray
     p11: jnp.ndarray
     p12: jnp.ndarray
+    p13: jnp.ndarray
     p22: jnp.ndarray
+    p23: jnp.ndarray
+    p33: jnp.ndarray
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
     rejected_m: jnp.ndarray
 
 
-# One float64 vector, and the 3x3 algebra written out on its scalars: inside the vmapped scan,
+# One float64 vector, and the 4x4 algebra written out on its scalars: inside the vmapped scan,
 # XLA:CPU runs each tiny matmul as its own kernel; written out, the step fuses (bench/bench_run.py).
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 OffsetState.__module__ = __name__
@@ -81,9 +95,10 @@ OffsetState.__module__ = __name__
 def init_offset_state(params):
     z = jnp.zeros((), jnp.float64)
     return OffsetState.pack(OffsetFields(
-        delta=z, beta=z, c=z, p00=deg(params.filter_sigma0_deg) ** 2, p01=z, p02=z,
-        p11=jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2, p12=z,
-        p22=deg(params.filter_gm_sigma_deg) ** 2, disturbance=z, since_absolute=z, rejected_m=z))
+        delta=z, beta=z, c=z, k=z, p00=deg(params.filter_sigma0_deg) ** 2, p01=z, p02=z, p03=z,
+        p11=jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2, p12=z, p13=z,
+        p22=deg(params.filter_gm_sigma_deg) ** 2, p23=z, p33=jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2,
+        disturbance=z, since_absolute=z, rejected_m=z))
 
 
 def start(params):
@@ -94,7 +109,7 @@ def start(params):
 def predict(params, fs, ad_signed, d_t, alpha):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
 
-    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0], [0, phi_b, 0], [0, 0, phi]].  The coloured
+    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha], [0, phi_b, 0, 0], [0, 0, phi, 0], [0, 0, 0, 1]].  The coloured
     compass error is first-order Gauss-Markov over filter_gm_m metres of stationary sigma
     filter_gm_sigma_deg (anomalies and dip errors are fixed in space, so in distance):
     phi = exp(-|AD| / filter_gm_m).
@@ -109,27 +124,38 @@ def predict(params, fs, ad_signed, d_t, alpha):
     q0 = params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2
     q1 = params.filter_rate_psd * d_t
     q2 = deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi)
+    q3 = params.filter_scale_psd * jnp.abs(alpha)
+    # Row 0 of F is (1, AD, 0, alpha): the offset moves by the rate times AD and by the scale
+    # error times the wheel turn.
+    r0 = f.p00 + a * f.p01 + alpha * f.p03
+    r1 = f.p01 + a * f.p11 + alpha * f.p13
+    r2 = f.p02 + a * f.p12 + alpha * f.p23
+    r3 = f.p03 + a * f.p13 + alpha * f.p33
     return OffsetState.pack(OffsetFields(
-        delta=f.delta + a * f.beta, beta=phi_b * f.beta, c=phi * f.c,
-        p00=f.p00 + 2.0 * a * f.p01 + a * a * f.p11 + q0,
-        p01=phi_b * (f.p01 + a * f.p11),
-        p02=phi * (f.p02 + a * f.p12),
+        delta=f.delta + a * f.beta + alpha * f.k, beta=phi_b * f.beta, c=phi * f.c, k=f.k,
+        p00=r0 + a * r1 + alpha * r3 + q0,
+        p01=phi_b * r1,
+        p02=phi * r2,
+        p03=r3,
         p11=phi_b * phi_b * f.p11 + q1,
         p12=phi_b * phi * f.p12,
+        p13=phi_b * f.p13,
         p22=phi * phi * f.p22 + q2,
+        p23=phi * f.p23,
+        p33=f.p33 + q3,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
-    DELTA = delta + c + white noise (h = [1, 0, 1]).  Returns (new state, accepted weight in
+    DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  Returns (new state, accepted weight in
     [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
     nu = wrap(delta_meas - f.delta - f.c)
     # P h and h^T P h.
-    ph0, ph1, ph2 = f.p00 + f.p02, f.p01 + f.p12, f.p02 + f.p22
+    ph0, ph1, ph2, ph3 = f.p00 + f.p02, f.p01 + f.p12, f.p02 + f.p22, f.p03 + f.p23
     p_hh = ph0 + ph2
     # Running agreement of DELTA with the wheels over filter_check_m metres.
     keep = jnp.exp(-d_t / params.filter_check_m)
@@ -142,13 +168,14 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
-    g0, g1, g2 = ph0 * inv, ph1 * inv, ph2 * inv
+    g0, g1, g2, g3 = ph0 * inv, ph1 * inv, ph2 * inv, ph3 * inv
     weight = 1.0 / (1.0 + z2 / gate2)
     rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
     new = OffsetFields(
-        delta=wrap(f.delta + g0 * nu), beta=f.beta + g1 * nu, c=f.c + g2 * nu,
-        p00=f.p00 - g0 * ph0, p01=f.p01 - g0 * ph1, p02=f.p02 - g0 * ph2,
-        p11=f.p11 - g1 * ph1, p12=f.p12 - g1 * ph2, p22=f.p22 - g2 * ph2,
+        delta=wrap(f.delta + g0 * nu), beta=f.beta + g1 * nu, c=f.c + g2 * nu, k=f.k + g3 * nu,
+        p00=f.p00 - g0 * ph0, p01=f.p01 - g0 * ph1, p02=f.p02 - g0 * ph2, p03=f.p03 - g0 * ph3,
+        p11=f.p11 - g1 * ph1, p12=f.p12 - g1 * ph2, p13=f.p13 - g1 * ph3,
+        p22=f.p22 - g2 * ph2, p23=f.p23 - g2 * ph3, p33=f.p33 - g3 * ph3,
         disturbance=disturbance - (g0 + g2) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
