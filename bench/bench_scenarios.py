@@ -61,8 +61,8 @@ def with_glitch_reference(drives, rows):
     """For each glitched drive, the RMSE of every mode from its first glitch on the same drive
     with the counters restored (same compass noise: the difference is the glitches' alone)."""
     glitched = [d for d in drives if d.condition == "glitches" and d.glitch_time_s is not None]
-    ref = {f"{d.scenario}/glitches/{d.seed}": r for d, r in zip(glitched, ev.evaluate(
-        [sc.without_glitches(d) for d in glitched]))}
+    restored = ev.evaluate([sc.without_glitches(d) for d in glitched])
+    ref = {d.name: r for d, r in zip(glitched, restored)}
     for r in rows:
         if r["name"] in ref:
             r["glitch_rmse_ref"] = ref[r["name"]]["glitch_rmse"]

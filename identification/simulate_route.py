@@ -63,6 +63,16 @@ def _speed(rng, lo, hi, base):
     return float(np.clip(base * rng.uniform(0.93, 1.05), lo, hi))
 
 
+def _junction_turn(rng, road, radius_range, angle_sigma_deg, k_max, v_cap):
+    """A turn of about 90 deg left or right at a junction: radius drawn in ``radius_range`` (m), at most
+    the steering's curvature ``k_max``, taken at the road's lateral-acceleration speed (at most ``v_cap``)."""
+    radius = rng.uniform(*radius_range)
+    angle = math.radians(90.0 + rng.normal(0.0, angle_sigma_deg)) * rng.choice([-1.0, 1.0])
+    kappa = math.copysign(min(1.0 / radius, k_max), angle)
+    v_turn = min(v_cap, math.sqrt(ROADS[road]["a_lat"] / abs(kappa))) * rng.uniform(0.75, 1.0)
+    return Leg(abs(angle / kappa), kappa, v_turn, road)
+
+
 def _urban_legs(rng, budget_s, k_max):
     legs: list[Leg] = []
     t = 0.0
@@ -86,12 +96,10 @@ def _urban_legs(rng, budget_s, k_max):
         legs.append(Leg(length, 0.0, v_street, "urban", stop_s=stop, straight=True))
         t += length / (0.7 * v_street) + stop
         if rng.random() < 0.55:  # 90° turn at the intersection
-            radius = rng.uniform(8.0, 35.0)  # tight corners to wide arterial junctions
-            angle = math.radians(90.0 + rng.normal(0.0, 3.0)) * rng.choice([-1.0, 1.0])
-            kappa = math.copysign(min(1.0 / radius, k_max), angle)
-            v_turn = min(v_street, math.sqrt(ROADS["urban"]["a_lat"] / abs(kappa))) * rng.uniform(0.75, 1.0)
-            legs.append(Leg(abs(angle / kappa), kappa, v_turn, "urban"))
-            t += abs(angle / kappa) / v_turn
+            # tight corners to wide arterial junctions
+            turn = _junction_turn(rng, "urban", (8.0, 35.0), 3.0, k_max, v_street)
+            legs.append(turn)
+            t += turn.length / turn.v_max
             v_street = _speed(rng, 6.0, 15.0, rng.choice([8.3, 11.1, 13.9]))
     return legs
 
@@ -106,12 +114,9 @@ def _rural_legs(rng, budget_s, k_max):
         legs.append(Leg(length, 0.0, v_road, "rural", stop_s=stop, straight=True))
         t += length / v_road + stop
         if stop > 0.0:
-            radius = rng.uniform(12.0, 25.0)
-            angle = math.radians(90.0 + rng.normal(0.0, 5.0)) * rng.choice([-1.0, 1.0])
-            kappa = math.copysign(min(1.0 / radius, k_max), angle)
-            v_turn = math.sqrt(ROADS["rural"]["a_lat"] / abs(kappa)) * rng.uniform(0.75, 1.0)
-            legs.append(Leg(abs(angle / kappa), kappa, v_turn, "rural"))
-            t += abs(angle / kappa) / v_turn + 10.0
+            turn = _junction_turn(rng, "rural", (12.0, 25.0), 5.0, k_max, math.inf)
+            legs.append(turn)
+            t += turn.length / turn.v_max + 10.0
             v_road = _speed(rng, 15.0, 25.0, rng.uniform(17.0, 24.0))
         else:
             radius = rng.uniform(80.0, 600.0)
