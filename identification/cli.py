@@ -161,7 +161,9 @@ def _parser() -> argparse.ArgumentParser:
             "effective_track_m, map_used. Output formats, by the extension of --out: .csv, .parquet (or .pq) "
             "and .mf4 (ASAM MDF4).")
     e.add_argument("drive", metavar="DRIVE", help="drive log: .csv, .parquet or .mf4")
-    e.add_argument("--params", metavar="P.json", help="parameter file (default: the built-in defaults)")
+    e.add_argument("--params", metavar="P.json",
+                   help="parameter file (default: the built-in defaults); without the vehicle's own P, B, T_F, T_R, "
+                        "a, dpp the wheel turn's scale error is learned online")
     e.add_argument("--out", required=True, metavar="EST",
                    help="output table: .csv, .parquet or .mf4 (format by extension); never one of the inputs")
     e.add_argument("--mode", choices=("complementary", "kalman", "odometer", "compass"), default="complementary",

@@ -38,12 +38,12 @@ MAX_TIMES_SHOWN = 5
 
 
 def checked_params(path, label: str = "--params"):
-    """(Params, extra) from ``path`` (validated), or the built-in defaults when ``path`` is None.
-    Every ParameterError names the file."""
+    """(Params, extra) from ``path`` (validated), or the built-in defaults when ``path`` is None
+    (extra["keys"]: the keys the file set).  Every ParameterError names the file."""
     import jaxmodel
 
     if path is None:
-        params, extra, name = jaxmodel.make_params(), {}, "built-in defaults"
+        params, extra, name = jaxmodel.make_params(), {"keys": ()}, "built-in defaults"
     else:
         params, extra = jaxmodel.load_params(path)
         name = str(path)

@@ -104,7 +104,8 @@ def main(args) -> int:
     drive_path = Path(args.drive)
     _format_of(out_path)  # refuse an unknown output extension before the work
     check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
-    params, _extra = checked_params(args.params)
+    params, extra = checked_params(args.params)
+    params, nominal_vehicle = jaxmodel.for_unidentified_vehicle(params, extra["keys"])
     drive = read_drive(drive_path)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track, robust=getattr(args, "filter", "robust") == "robust",
@@ -118,6 +119,12 @@ def main(args) -> int:
         return 1
     with atomic(out_path) as tmp:
         write_drive(tmp, cols)
+    if nominal_vehicle:
+        sigma0 = jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]
+        console.info(f"no vehicle parameters ({', '.join(jaxmodel.VEHICLE_KEYS)}) in "
+                     f"{args.params or 'the built-in defaults'}: the nominal vehicle, with the wheel turn's scale "
+                     f"error learned online (filter_scale_sigma0 {sigma0:g}); "
+                     f"odocompass identify finds the vehicle's own")
     for w in drive_warnings(drive, params, cols):
         console.warn(w)
     n_compass, n_odometer = skipped_counts(cols)

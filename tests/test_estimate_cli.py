@@ -196,6 +196,39 @@ def test_filter_seed_is_the_seed_filter_and_robust_the_default(tmp_path, params_
         np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
 
 
+def test_without_vehicle_parameters_the_turn_scale_is_learned(tmp_path, params_file, capsys):
+    """No P, B, T_F, T_R, a or dpp given (no file, or a file without them): the nominal vehicle, and the
+    offset filter's turn-scale state on (jaxmodel.UNIDENTIFIED_VEHICLE), said on stderr; a file that
+    gives the vehicle (or the turn-scale keys themselves) runs the parameters as they are."""
+    cols = drive_columns()
+    drive_path = write_drive(tmp_path / "drive.csv", cols)
+    inputs = drive_from_columns(cols).inputs
+    filter_only = tmp_path / "filter_only.json"
+    filter_only.write_text(json.dumps({"T_C": 900.0}))
+    explicit = tmp_path / "explicit.json"
+    explicit.write_text(json.dumps({"filter_scale_sigma0": 0.0}))
+    cases = ((None, jaxmodel.make_params(jaxmodel.UNIDENTIFIED_VEHICLE), True),
+             (filter_only, jaxmodel.make_params(dict(jaxmodel.UNIDENTIFIED_VEHICLE, T_C=900.0)), True),
+             (params_file, jaxmodel.make_params(sensor_axle="rear", T_R=1.55, a=0.0), False),
+             (explicit, jaxmodel.make_params(), False))
+    for path, params, learned in cases:
+        out = tmp_path / "est.csv"
+        rc, err = run_cli(["estimate", str(drive_path), "--out", str(out)] + (["--params", str(path)] if path else []),
+                          capsys)
+        assert rc == 0, err
+        assert ("scale error learned online" in err) == learned, (path, err)
+        expected = np.degrees(np.asarray(jaxmodel.run(params, inputs).heading))
+        np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
+
+
+def test_for_unidentified_vehicle_leaves_given_parameters_alone():
+    base = jaxmodel.make_params()
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_F",)) == (base, False)
+    assert jaxmodel.for_unidentified_vehicle(base, ("filter_scale_psd",)) == (base, False)
+    changed, nominal = jaxmodel.for_unidentified_vehicle(base, ("T_C", "D_N"))
+    assert nominal and float(changed.filter_scale_sigma0) == jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]
+
+
 def test_estimate_cli_parquet_output(tmp_path, capsys):
     drive_path = write_drive(tmp_path / "drive.csv", drive_columns())
     out = tmp_path / "est.parquet"
