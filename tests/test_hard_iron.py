@@ -146,11 +146,12 @@ def test_estimate_cli_hard_iron_on_runs_the_online_estimate(tmp_path, capsys):
     d.pop("true_heading")
     drive_path = write_drive(tmp_path / "drive.csv", d)
     inputs = read_drive(drive_path).inputs
+    params, _nominal = jm.for_unidentified_vehicle(jm.make_params(), ())  # estimate without --params
     for option, on in ((None, False), ("on", True)):
         out = tmp_path / f"est_{option}.csv"
         rc = cli.main(["estimate", str(drive_path), "--out", str(out)] + (["--hard-iron", option] if option else []))
         assert rc == 0, capsys.readouterr().err
-        expected = np.degrees(np.asarray(jm.run(jm.make_params(), inputs, jm.Config(hard_iron=on)).heading))
+        expected = np.degrees(np.asarray(jm.run(params, inputs, jm.Config(hard_iron=on)).heading))
         got = np.genfromtxt(out, delimiter=",", names=True)["heading_deg"]
         np.testing.assert_allclose(got, (expected + 180.0) % 360.0 - 180.0, atol=1e-6)
-    assert np.max(np.abs(_wrapped_deg(got - np.degrees(np.asarray(jm.run(jm.make_params(), inputs).heading))))) > 10.0
+    assert np.max(np.abs(_wrapped_deg(got - np.degrees(np.asarray(jm.run(params, inputs).heading))))) > 10.0
