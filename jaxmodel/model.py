@@ -42,7 +42,8 @@ class Config(NamedTuple):
     (eq. 9-13).  calibration: left/right dpp calibration (EP 0619873).  track: 'closed_form'
     (eq. 14) or 'table' (claims 15-16).  robust (the default, issue 10): the odometer guard
     of jaxmodel/plausibility.py in every mode, F-DELTA by the Kalman filter of
-    jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error, turn scale error), B_E per heading, FIG. 8E before 8F, calibration that captures up to
+    jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error, turn scale error; the
+    heading from its rate-free steady twin while the rate is insignificant), B_E per heading, FIG. 8E before 8F, calibration that captures up to
     cal_max_correction, reliability 0 before any absolute heading.  robust=False: the seed's
     first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°
@@ -127,6 +128,7 @@ class State(NamedTuple):
     kalman: _kalman.KalmanState
     guard: _guard.GuardState
     offset: _offset.OffsetState
+    steady: _offset.OffsetState   # F-DELTA without a rate state (the heading while the rate is insignificant)
     hard_iron: _hard_iron.HardIronState  # online X0/Y0 (Config.hard_iron; else carried unchanged)
 
 
@@ -167,7 +169,8 @@ def init_state(params) -> State:
         field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
-        offset=_offset.init_offset_state(params), hard_iron=_hard_iron.init_hard_iron_state(params),
+        offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
+        hard_iron=_hard_iron.init_hard_iron_state(params),
     )
 
 
@@ -304,7 +307,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
             sample.compass_unreliable_area)
         absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
 
-        # FIG. 8G / 8H: F-DELTA by the robust offset filter (jaxmodel/offset_filter.py), EH = H_W + F-DELTA.
+        # FIG. 8G / 8H: F-DELTA by the robust offset filters (jaxmodel/offset_filter.py), EH = H_W + F-DELTA:
+        # the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
         distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
         offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
         sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
@@ -312,7 +316,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                               absolute_ok & ~initializing)
         offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
-        f_delta = offset.delta
+        steady_params = _offset.steady_params(params)
+        steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
+        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing)
+        steady = _offset.follow(params, steady, offset, initializing)
+        f_delta = steady.delta
         complementary = wrap(wheel_heading + f_delta)
 
         field_sum, field_count = _compass.learn_field(
@@ -341,6 +349,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         complementary = wrap(wheel_heading + f_delta)
         compass_delta = wrap(h_c - wheel_heading)
         offset = state.offset
+        steady = state.steady
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
@@ -383,7 +392,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _offset.bound(offset, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
+    bound = _offset.bound(steady, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
     reliability = _hf.reliability(params, bound)
     if robust:
         reliability = jnp.where(initialized > 0.5, reliability, 0.0)
@@ -397,7 +406,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         f_delta=f_delta, heading=heading, e_w=e_w, e_c=e_c, sdd=sdd, factor=factor, delta_history=history,
         distance_since_F=distance_since_F, distance_filtered=distance_filtered, field_sum=field_sum,
         field_count=field_count, a=a, x=x, y=y, distance=state.distance + d_t, refine=refine_state,
-        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset, hard_iron=hard_iron,
+        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,

@@ -29,6 +29,16 @@ jumps through its rate state (nominal parameters on the tuning drives: 20 deg RM
 k, prior sigma ``filter_scale_sigma0`` 0.05; docs/tuning.md).  Off by default (sigma0 0): with
 exact parameters it costs 5-11 %, and one tuning-side 2.5 % mismatch drive went 1 -> 9.7 deg.
 
+Two filters, one heading.  The rate that makes this filter follow a tyre mismatch before the
+calibration has caught it is, on a drive without one, noise learned from a compass whose errors
+are correlated over kilometres (dip on hills: 3 % of grade puts a level compass 7 deg off for
+600 m; anomalies), and the filter integrates it (clean drives 0.8-2 deg against the rate-free
+seed filter's 0.5-1.1 deg).  So a second, *steady* F-DELTA runs beside it without a rate state
+(``steady_params``: turn noise ``filter_steady_turn_sigma``) and gives the heading; it is drawn to
+the rate filter's offset while that filter's rate is significant (``follow``: more than
+``filter_rate_significance`` of its sigmas, the wheels are seen to drift), and goes its own way
+again once the calibration has taken the drift out (docs/tuning.md, "steady F-DELTA").
+
 Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degree spikes):
 
 * disturbance detection by agreement with the wheels: ``disturbance`` is the innovation
@@ -51,6 +61,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
@@ -200,3 +211,44 @@ def bound(fs, initialized):
     """Heading bound (rad): sqrt of the offset variance; UNINITIALIZED_BOUND before the start."""
     p = fs.p00
     return jnp.where(initialized > 0.5, jnp.sqrt(jnp.maximum(p, 0.0)), UNINITIALIZED_BOUND)
+
+
+def steady_params(params):
+    """Constants of the steady F-DELTA: no rate state, ``filter_steady_turn_sigma`` as turn noise."""
+    z = jnp.zeros_like(params.filter_rate_psd)
+    return params._replace(filter_rate_sigma0=z, filter_rate_psd=z, filter_turn_sigma=params.filter_steady_turn_sigma)
+
+
+def follow_weight(params, rate_filter):
+    """How much the steady F-DELTA takes the rate filter's state this sample, in [0, 1].
+
+    A smooth step in the rate's significance z = |beta| / sigma_beta, 0.5 at z =
+    filter_rate_significance and 1e-7 at z = 0 (so gradients exist across the switch; at 10 Hz the
+    pull of an insignificant rate is nil, of a significant one complete within samples).
+    """
+    f = rate_filter.fields()
+    z = jnp.abs(f.beta) / jnp.sqrt(jnp.maximum(f.p11, 1e-300))
+    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
+
+
+FOLLOW_STEEPNESS = 8.0
+"""Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
+
+
+def follow(params, steady, rate_filter, initializing):
+    """The steady F-DELTA drawn to the rate filter's state (rate taken out) while that rate is significant.
+
+    The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
+    before the calibration has caught it), but on clean drives the rate it learns from a compass with
+    errors correlated over kilometres (dip on hills, anomalies) is noise that it integrates.  The
+    steady filter has no rate; it gives the heading, and takes the rate filter's offset whenever the
+    wheels are seen to drift (docs/tuning.md).
+    """
+    f = rate_filter.fields()
+    z = jnp.zeros_like(f.beta)
+    taken = OffsetState.pack(f._replace(beta=z, p01=z, p11=z, p12=z, p13=z)).vector
+    w = jnp.where(initializing, 1.0, follow_weight(params, rate_filter))[..., None]
+    # Offsets are angles: blend the wrapped difference.
+    diff = (taken - steady.vector).at[..., 0].set(wrap(taken[..., 0] - steady.vector[..., 0]))
+    blended = steady.vector + w * diff
+    return OffsetState(blended.at[..., 0].set(wrap(blended[..., 0])))

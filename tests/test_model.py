@@ -172,7 +172,13 @@ def test_gradients_of_the_default_filter_match_finite_differences():
     u0 = jnp.array([1.0, 1.0, 1.0, 1.3, 1.0, 1.0, 1.0])
     g = jax.grad(loss)(u0)
     assert np.all(np.isfinite(np.asarray(g))) and np.all(np.asarray(g) != 0.0), dict(zip(names, np.asarray(g)))
-    check_grads(loss, (u0,), order=1, modes=["rev"], eps=1e-5, atol=1e-9, rtol=2e-3)
+    # Central differences per constant with a step of 1e-6: a step of 1e-5 in T_F crosses a gate's
+    # kink of the steady F-DELTA on this drive (the difference moves by 0.8 %; at 1e-6 and 1e-7 it
+    # equals the gradient to 1e-8), and check_grads' random projection mixes T_F into every check.
+    for i, name in enumerate(names):
+        e = jnp.zeros_like(u0).at[i].set(1e-6)
+        fd = (loss(u0 + e) - loss(u0 - e)) / 2e-6
+        np.testing.assert_allclose(g[i], fd, rtol=2e-3, atol=1e-12, err_msg=name)
 
 
 def test_jit_vmap_run_equals_a_loop_of_run():
