@@ -197,3 +197,20 @@ def test_without_glitches_is_the_same_drive_with_its_counters_restored():
         clean.columns["right_pulses"] != glitched.columns["right_pulses"])
     first = int(np.argmax(glitched.truth["time_s"] >= glitched.glitch_time_s))
     assert differs.any() and not differs[:first].any()
+
+
+@pytest.mark.slow
+def test_steady_offset_filter_keeps_slow_compass_errors_out_and_follows_drifting_wheels():
+    """The heading comes from the rate-free steady F-DELTA unless the rate filter's rate is significant.
+
+    mixed/baseline/104 (tuning seed, 10 minutes) climbs 3 % grades where the level compass is 7 deg
+    off for 600 m: the rate filter's own heading (significance 0: always followed) learns that as a
+    rate, 1.98 deg; the default 1.12 deg.  With a 1.5 % tyre mismatch the steady filter alone
+    (never following) is 64 deg off; the default follows the rate filter, 2.7 deg.
+    """
+    clean = sc.make_drive("mixed", "baseline", 104, duration_s=600.0)
+    default, rate_only = (_default_rmse_after_first_minute(clean, o) for o in ({}, {"filter_rate_significance": 0.0}))
+    assert default < 0.7 * rate_only and default < 1.4, (default, rate_only)
+    mismatch = sc.make_drive("mixed", "mismatch_1.5", 104, duration_s=600.0)
+    default, never = (_default_rmse_after_first_minute(mismatch, o) for o in ({}, {"filter_rate_significance": 1e9}))
+    assert default < 4.0 and never > 20.0, (default, never)
