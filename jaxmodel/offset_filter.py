@@ -219,6 +219,10 @@ def steady_params(params):
     return params._replace(filter_rate_sigma0=z, filter_rate_psd=z, filter_turn_sigma=params.filter_steady_turn_sigma)
 
 
+FOLLOW_STEEPNESS = 8.0
+"""Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
+
+
 def follow_weight(params, rate_filter):
     """How much the steady F-DELTA takes the rate filter's state this sample, in [0, 1].
 
@@ -226,13 +230,8 @@ def follow_weight(params, rate_filter):
     filter_rate_significance and 1e-7 at z = 0 (so gradients exist across the switch; at 10 Hz the
     pull of an insignificant rate is nil, of a significant one complete within samples).
     """
-    f = rate_filter.fields()
-    z = jnp.abs(f.beta) / jnp.sqrt(jnp.maximum(f.p11, 1e-300))
+    z = jnp.abs(rate_filter.beta) / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
     return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
-
-
-FOLLOW_STEEPNESS = 8.0
-"""Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
 
 
 def follow(params, steady, rate_filter, initializing):
@@ -248,7 +247,8 @@ def follow(params, steady, rate_filter, initializing):
     z = jnp.zeros_like(f.beta)
     taken = OffsetState.pack(f._replace(beta=z, p01=z, p11=z, p12=z, p13=z)).vector
     w = jnp.where(initializing, 1.0, follow_weight(params, rate_filter))[..., None]
-    # Offsets are angles: blend the wrapped difference.
-    diff = (taken - steady.vector).at[..., 0].set(wrap(taken[..., 0] - steady.vector[..., 0]))
+    # F-DELTA is an angle: blend the wrapped difference.
+    i = OffsetFields._fields.index("delta")
+    diff = (taken - steady.vector).at[..., i].set(wrap(taken[..., i] - steady.vector[..., i]))
     blended = steady.vector + w * diff
-    return OffsetState(blended.at[..., 0].set(wrap(blended[..., 0])))
+    return OffsetState(blended.at[..., i].set(wrap(blended[..., i])))
