@@ -8,11 +8,13 @@ used; ``bench/bench_scenarios.py`` judges the result on ``EVALUATION_SEEDS``.  P
 and fitted values and the loss; paste the fitted values into jaxmodel/params.py by hand (then
 they are frozen).
 
-    .venv/bin/python bench/tune_defaults.py [--iterations 60] [--duration 600] [--seeds 101,102,103]
+    .venv/bin/python bench/tune_defaults.py [--iterations 60] [--duration 600] [--seeds 101,102,103] [--start FIT.json]
 """
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import jax
 
@@ -26,7 +28,7 @@ from jaxmodel.angles import wrap  # noqa: E402
 from identification import scenario_eval as ev  # noqa: E402
 from identification import scenarios as sc  # noqa: E402
 
-TUNED = ("filter_offset_psd", "filter_rate_psd", "filter_rate_sigma0", "filter_check_m", "filter_check_sigma_deg",
+TUNED = ("filter_steady_turn_sigma", "filter_rate_significance", "filter_reject_harden_m", "filter_offset_psd", "filter_rate_psd", "filter_rate_sigma0", "filter_check_m", "filter_check_sigma_deg",
          "filter_gate_sigma", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_ec_weight",
          "filter_turn_sigma", "filter_sigma0_deg", "filter_gm_m", "filter_gm_sigma_deg")
 """Only constants of the default mode's filter: the kf_* keys of the Kalman mode stay as bench/tune_kalman.py fitted them."""
@@ -39,6 +41,7 @@ def main():
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seeds", default=",".join(str(s) for s in sc.TUNING_SEEDS))
     ap.add_argument("--learning-rate", type=float, default=0.08)
+    ap.add_argument("--start", help="JSON file of filter constants to start from (default: jaxmodel/params.py)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     assert not set(seeds) & set(sc.EVALUATION_SEEDS), "never tune on the evaluation seeds"
@@ -48,7 +51,8 @@ def main():
     # The project's own simulator too (its anomalies, map and vehicle), on seeds no test uses.
     drives += [sc.project_drive(scenario, 300 + seed, args.duration) for seed in seeds
                for scenario in ("urban", "mixed", "highway", "parking")]
-    params = ev.stack_params([d.params for d in drives])
+    start = json.loads(Path(args.start).read_text()) if args.start else {}
+    params = ev.stack_params([d.params for d in drives], start)
     _, inputs, mask, truth, time_s = ev.stacked_inputs(drives)
     keep = jnp.asarray((mask > 0.5) & (time_s - time_s[:, :1] >= ev.SKIP_S), jnp.float64)
     truth = jnp.asarray(truth)

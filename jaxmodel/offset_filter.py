@@ -51,10 +51,15 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   widens and a clean compass is taken back within metres; sqrt(P) is the heading bound behind
   ``heading_reliability``.
 * re-acquisition: a compass rejected for ``filter_reacquire_m`` metres in a row restarts the
-  filter from it, as the first compass sample does (FIG. 8B).  Anomalies, bridges and car parks
-  disturb it for tens to hundreds of metres; a longer disagreement means the wheels are wrong (a
-  rate that ran away under a 2.5 % tyre mismatch before the calibration caught it locked the
-  filter out of a clean compass for a whole highway drive, 105 deg RMSE; 2.7 deg with it).
+  filter from it, as the first compass sample does (FIG. 8B), when the rate filter's rate turns
+  F-DELTA by more than ``filter_reacquire_drift_deg`` over that distance (``drifting``): the
+  disagreement is then the wheels' (a rate that ran away under a 2.5 % tyre mismatch before the
+  calibration caught it locked the filter out of a clean compass for a whole highway drive,
+  105 deg RMSE; 2.7 deg with it).  Without such a drift the compass has an error of its own (a
+  shifted hard iron reads 8-15 deg off for the rest of the drive): it restarts the filter only
+  after ``filter_reacquire_step_m`` (a step in the wheel heading), and its variance grows by
+  1 + (R / ``filter_reject_harden_m``)^2 over R metres of rejection, so that its soft-gated
+  samples do not creep in (they moved F-DELTA 6 deg in 1.2 km on highway/hard_iron_shift/103).
 """
 
 from __future__ import annotations
@@ -157,10 +162,12 @@ def predict(params, fs, ad_signed, d_t, alpha):
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
-    DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  Returns (new state, accepted weight in
+    DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  ``drifting`` (bool, from ``drifting``):
+    the rate filter explains a long disagreement by the wheels, so the compass is neither hardened
+    against nor kept out beyond filter_reacquire_m.  Returns (new state, accepted weight in
     [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
@@ -176,7 +183,10 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     z2 = disturbance ** 2 / (p_hh + s2)
     # Information counted once per kf_compass_corr_m metres: no gain while standing still.
     per_distance = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
-    r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2)
+    # A compass rejected for long while the wheels do not drift has a persistent error of its own
+    # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
+    hardening = jnp.where(drifting, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
+    r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
     g0, g1, g2, g3 = ph0 * inv, ph1 * inv, ph2 * inv, ph3 * inv
@@ -194,12 +204,18 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok):
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
     restart = start(params).fields()._replace(delta=wrap(delta_meas))
-    reacquire = rejected_m > params.filter_reacquire_m
+    reacquire = rejected_m > jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m)
     new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
     weight = jnp.where(ok, weight, 0.0)
     return out, weight
+
+
+def drifting(params, rate_filter):
+    """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over filter_reacquire_m
+    (bool): a disagreement with the compass is then the wheels' (a lock-out), not the compass's."""
+    return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
 
 
 def shift_rate(fs, change_per_m):

@@ -52,12 +52,27 @@ def test_reacquisition_ends_a_lock_out():
     """A 2.5 % tyre mismatch on a highway, before the calibration has caught it, turns the wheel heading
     ~0.9 deg per metre; the offset's rate ran away and the soft gate then rejected a clean compass for the
     rest of the drive (105 deg RMSE over 15 minutes).  After filter_reacquire_m of rejection the filter restarts from the
-    compass.  Seed 108 is a tuning-side seed (not among the evaluation seeds)."""
+    compass, since the rate filter's rate explains the disagreement (``drifting``).  Seed 108 is a tuning-side seed
+    (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg."""
     drive = sc.make_drive("highway", "mismatch_2.5", 108, duration_s=450.0)
     rmse = {"default": _default_rmse_after_first_minute(drive),
             "never": _default_rmse_after_first_minute(drive, {"filter_reacquire_m": 1e12})}
-    assert rmse["never"] > 30.0, rmse
+    assert rmse["never"] > 15.0, rmse
     assert rmse["default"] < 5.0, rmse
+
+
+@pytest.mark.slow
+def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
+    """A hard iron that shifts mid-drive puts the compass 5-9 deg off for the last quarter of a highway drive while
+    the wheels stay within 2 deg.  Its soft-gated samples used to creep into F-DELTA, and after filter_reacquire_m of
+    rejection the filter restarted from it.  Without a drifting rate the rejected compass is hardened against
+    (filter_reject_harden_m) and restarts the filter only after filter_reacquire_step_m.  Tuning-side seed 101;
+    measured with the stop-20 constants: 0.46 deg, before 3.81 deg."""
+    drive = sc.make_drive("highway", "hard_iron_shift", 101)
+    before = {"filter_reject_harden_m": 1e12, "filter_reacquire_step_m": 1000.0}
+    rmse = {"default": _default_rmse_after_first_minute(drive), "before": _default_rmse_after_first_minute(drive, before)}
+    assert rmse["before"] > 3.0, rmse  # AssertionError shows both
+    assert rmse["default"] < 0.5 * rmse["before"], rmse
 
 
 def test_seeds_are_split():
