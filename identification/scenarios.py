@@ -23,6 +23,8 @@ hills               grades of 3-7 % over 300-1200 m (dip error on a level-mounte
 glitches            pulse glitches: three bursts of 10-30 spurious pulses, two +-3000-count
                     spikes (``glitch_time_s`` is the first one)
 dropouts            two compass dropouts of 2-4 minutes (NaN)
+garage_start        the drive starts in a garage: the field turned by 60-150 deg and scaled by 0.6-1.0
+                    for the first 30-60 s
 no_compass          every compass sample NaN
 zero_compass        every compass sample 0 (a dead sensor)
 wrong_modulus       the counters wrap at 10,000 while the parameters say 65,536
@@ -47,7 +49,8 @@ from .simulate import SCENARIOS, simulate
 BASE_CONDITIONS = ("baseline", "rotating", "long_disturbance", "hard_iron_shift", "soft_iron", "hills", "glitches",
                    "dropouts", "no_compass", "zero_compass", "wrong_modulus")
 MISMATCHES_PCT = (0.0, 0.5, 1.0, 1.5, 2.5)
-CONDITIONS = BASE_CONDITIONS + tuple(f"mismatch_{m:g}" for m in MISMATCHES_PCT)
+CONDITIONS = BASE_CONDITIONS + tuple(f"mismatch_{m:g}" for m in MISMATCHES_PCT) + ("garage_start",)
+"""Every condition; a new one goes at the end (a drive's random stream is seeded with its condition's index)."""
 NO_COMPASS_CONDITIONS = ("no_compass", "zero_compass")
 TUNING_SEEDS = (101, 102, 103)
 EVALUATION_SEEDS = (201, 202, 203)
@@ -206,6 +209,16 @@ def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900
         X0, Y0 = mag * math.cos(ang), mag * math.sin(ang)
         cx, cy = cx + np.where(after, X0, 0.0), cy + np.where(after, Y0, 0.0)
         notes["hard_iron_shift"] = {"time_s": when, "X0": X0, "Y0": Y0}
+    if condition == "garage_start":
+        # The drive starts inside a garage: its steel turns the field by 60-150 deg and scales it by 0.6-1.0
+        # until the car has left (30-60 s), so the first compass samples start the wheel heading wrong (FIG. 8B).
+        leave = t[0] + rng.uniform(30.0, 60.0)
+        turn = math.radians(rng.uniform(60.0, 150.0)) * rng.choice([-1.0, 1.0])
+        scale = rng.uniform(0.6, 1.0)
+        inside = t < leave
+        rc, rs = scale * math.cos(turn), scale * math.sin(turn)
+        cx, cy = np.where(inside, rc * cx - rs * cy, cx), np.where(inside, rs * cx + rc * cy, cy)
+        notes["garage_start"] = {"leave_s": leave - t[0], "turn_deg": math.degrees(turn), "scale": scale}
     noise = rng.standard_normal((t.size, 2)) * 0.25
     cx = np.round((cx + noise[:, 0]) / 0.05) * 0.05
     cy = np.round((cy + noise[:, 1]) / 0.05) * 0.05

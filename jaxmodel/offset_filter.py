@@ -60,6 +60,8 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   after ``filter_reacquire_step_m`` (a step in the wheel heading), and its variance grows by
   1 + (R / ``filter_reject_harden_m``)^2 over R metres of rejection, so that its soft-gated
   samples do not creep in (they moved F-DELTA 6 deg in 1.2 km on highway/hard_iron_shift/103).
+  A compass that disagrees by more than ``filter_reacquire_large_deg`` (``lost``) restarts it
+  after ``filter_reacquire_lost_m``: the heading itself is wrong (a drive started in a garage).
 """
 
 from __future__ import annotations
@@ -162,12 +164,13 @@ def predict(params, fs, ad_signed, d_t, alpha):
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, lost):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  ``drifting`` (bool, from ``drifting``):
     the rate filter explains a long disagreement by the wheels, so the compass is neither hardened
-    against nor kept out beyond filter_reacquire_m.  Returns (new state, accepted weight in
+    against nor kept out beyond filter_reacquire_m; ``lost`` (bool, from ``lost``): the heading itself is
+    wrong, and the compass restarts F-DELTA after filter_reacquire_lost_m.  Returns (new state, accepted weight in
     [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
@@ -185,7 +188,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     per_distance = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
-    hardening = jnp.where(drifting, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
+    hardening = jnp.where(drifting | lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
@@ -204,7 +207,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
     restart = start(params).fields()._replace(delta=wrap(delta_meas))
-    reacquire = rejected_m > jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m)
+    reacquire = rejected_m > jnp.where(lost, params.filter_reacquire_lost_m,
+                                       jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
     new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
@@ -216,6 +220,16 @@ def drifting(params, rate_filter):
     """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over filter_reacquire_m
     (bool): a disagreement with the compass is then the wheels' (a lock-out), not the compass's."""
     return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
+
+
+def lost(params, rate_filter):
+    """Whether F-DELTA disagrees with the compass by more than filter_reacquire_large_deg (bool).  No fault of a
+    compass that keeps its calibration turns it that far for long (a shifted hard iron of 6 µT on 20 µT: 17 deg;
+    long disturbances are rejected on their way in), so after filter_reacquire_lost_m of it the heading itself is
+    taken as wrong: a drive that started in a garage, whose steel turned the first compass samples by 60-150 deg,
+    was 16-90 deg off for the whole drive (docs/tuning.md).  The field magnitude is no guide here: B_E is learned
+    from those first samples too."""
+    return jnp.abs(rate_filter.disturbance) > deg(params.filter_reacquire_large_deg)
 
 
 def shift_rate(fs, change_per_m):
