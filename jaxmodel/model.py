@@ -314,14 +314,12 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
                           jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
         drifting = _offset.drifting(params, offset)
-        lost = _offset.lost(params, offset)
         offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                              absolute_ok & ~initializing, drifting, lost)
+                                              absolute_ok & ~initializing, drifting)
         offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
         steady_params = _offset.steady_params(params)
         steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
-        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                                   lost)
+        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting)
         steady = _offset.follow(params, steady, offset, initializing)
         f_delta = steady.delta
         complementary = wrap(wheel_heading + f_delta)

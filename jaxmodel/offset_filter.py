@@ -164,13 +164,13 @@ def predict(params, fs, ad_signed, d_t, alpha):
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, lost):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  ``drifting`` (bool, from ``drifting``):
     the rate filter explains a long disagreement by the wheels, so the compass is neither hardened
-    against nor kept out beyond filter_reacquire_m; ``lost`` (bool, from ``lost``): the heading itself is
-    wrong, and the compass restarts F-DELTA after filter_reacquire_lost_m.  Returns (new state, accepted weight in
+    against nor kept out beyond filter_reacquire_m.  A filter ``lost`` by its own running disagreement
+    restarts from the compass after filter_reacquire_lost_m.  Returns (new state, accepted weight in
     [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
@@ -188,7 +188,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, lost):
     per_distance = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
-    hardening = jnp.where(drifting | lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
+    is_lost = lost(params, disturbance)
+    hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
@@ -207,7 +208,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, lost):
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
     restart = start(params).fields()._replace(delta=wrap(delta_meas))
-    reacquire = rejected_m > jnp.where(lost, params.filter_reacquire_lost_m,
+    reacquire = rejected_m > jnp.where(is_lost, params.filter_reacquire_lost_m,
                                        jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
     new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
@@ -222,14 +223,15 @@ def drifting(params, rate_filter):
     return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
 
 
-def lost(params, rate_filter):
-    """Whether F-DELTA disagrees with the compass by more than filter_reacquire_large_deg (bool).  No fault of a
-    compass that keeps its calibration turns it that far for long (a shifted hard iron of 6 µT on 20 µT: 17 deg;
-    long disturbances are rejected on their way in), so after filter_reacquire_lost_m of it the heading itself is
-    taken as wrong: a drive that started in a garage, whose steel turned the first compass samples by 60-150 deg,
-    was 16-90 deg off for the whole drive (docs/tuning.md).  The field magnitude is no guide here: B_E is learned
-    from those first samples too."""
-    return jnp.abs(rate_filter.disturbance) > deg(params.filter_reacquire_large_deg)
+def lost(params, disturbance):
+    """Whether a filter's running disagreement with the compass ``disturbance`` (rad) exceeds
+    filter_reacquire_large_deg (bool; each filter judges its own: the steady one can be lost while the rate one
+    has restarted).  No fault of a compass that keeps its calibration turns it that far for long (a shifted hard
+    iron of 6 µT on 20 µT: 17 deg; long disturbances are rejected on their way in), so after
+    filter_reacquire_lost_m of it the heading itself is taken as wrong: a drive that started in a garage, whose
+    steel turned the first compass samples by 60-150 deg, was 16-90 deg off for the whole drive (docs/tuning.md).
+    The field magnitude is no guide here: B_E is learned from those first samples too."""
+    return jnp.abs(disturbance) > deg(params.filter_reacquire_large_deg)
 
 
 def shift_rate(fs, change_per_m):
