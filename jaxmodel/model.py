@@ -393,7 +393,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _offset.bound(steady, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
+    bound = _offset.bound(params, steady, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
     reliability = _hf.reliability(params, bound)
     if robust:
         reliability = jnp.where(initialized > 0.5, reliability, 0.0)

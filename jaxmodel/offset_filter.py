@@ -239,10 +239,13 @@ def shift_rate(fs, change_per_m):
     return OffsetState(fs.vector.at[..., OffsetFields._fields.index("beta")].add(-change_per_m))
 
 
-def bound(fs, initialized):
-    """Heading bound (rad): sqrt of the offset variance; UNINITIALIZED_BOUND before the start."""
-    p = fs.p00
-    return jnp.where(initialized > 0.5, jnp.sqrt(jnp.maximum(p, 0.0)), UNINITIALIZED_BOUND)
+def bound(params, fs, initialized):
+    """Heading bound (rad): sqrt of the offset variance, at least the running disagreement with the compass while
+    the filter is ``lost`` (a heading that the compass contradicts by more than filter_reacquire_large_deg is not
+    supported, whatever its variance says); UNINITIALIZED_BOUND before the start."""
+    sigma = jnp.sqrt(jnp.maximum(fs.p00, 0.0))
+    sigma = jnp.where(lost(params, fs.disturbance), jnp.maximum(sigma, jnp.abs(fs.disturbance)), sigma)
+    return jnp.where(initialized > 0.5, sigma, UNINITIALIZED_BOUND)
 
 
 def steady_params(params):

@@ -91,6 +91,21 @@ def test_a_drive_started_in_a_garage_finds_its_heading(scenario, seed, turned):
     assert rmse["never"] > 30.0, rmse
     assert rmse["default"] < 3.0, rmse
 
+
+@pytest.mark.slow
+def test_reliability_falls_while_the_compass_contradicts_the_heading():
+    """Parking after a garage start (tuning-side seed 106): the car needs 140 s to drive the 100 m after which the
+    lost filter restarts, and for all that time the heading is 136 deg off.  Its variance says 1.4 deg; the bound is
+    at least the running disagreement while lost, so heading_reliability falls (0.015 there, 0.6 before)."""
+    drive = sc.make_drive("parking", "garage_start", 106, duration_s=300.0)
+    out = _run(drive)
+    err = np.abs(_err_deg(out, drive))
+    after_garage = drive.truth["time_s"] >= drive.notes["garage_start"]["leave_s"] + 10.0
+    wrong = after_garage & (err > 90.0)
+    assert wrong.sum() > 500, wrong.sum()   # the condition this test is about does occur
+    assert np.all(np.degrees(np.asarray(out.heading_bound))[wrong] > 60.0)
+    assert np.all(np.asarray(out.heading_reliability)[wrong] < 0.1)
+
 def test_seeds_are_split():
     assert not set(sc.TUNING_SEEDS) & set(sc.EVALUATION_SEEDS)
 
