@@ -218,8 +218,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
 
 
 def drifting(params, rate_filter):
-    """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over filter_reacquire_m
-    (bool): a disagreement with the compass is then the wheels' (a lock-out), not the compass's."""
+    """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over
+    filter_reacquire_m (bool): a disagreement with the compass is then the wheels' (a lock-out), not the
+    compass's."""
     return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
 
 

@@ -57,7 +57,8 @@ def test_reacquisition_ends_a_lock_out():
     (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg."""
     drive = sc.make_drive("highway", "mismatch_2.5", 108, duration_s=450.0)
     rmse = {"default": _default_rmse_after_first_minute(drive),
-            "never": _default_rmse_after_first_minute(drive, {"filter_reacquire_m": 1e12, "filter_reacquire_large_deg": 1e9})}
+            "never": _default_rmse_after_first_minute(drive, {"filter_reacquire_m": 1e12,
+                                                              "filter_reacquire_large_deg": 1e9})}
     assert rmse["never"] > 15.0, rmse
     assert rmse["default"] < 5.0, rmse
 
@@ -71,10 +72,10 @@ def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
     measured with the stop-20 constants: 0.46 deg, before 3.81 deg."""
     drive = sc.make_drive("highway", "hard_iron_shift", 101)
     before = {"filter_reject_harden_m": 1e12, "filter_reacquire_step_m": 1000.0}
-    rmse = {"default": _default_rmse_after_first_minute(drive), "before": _default_rmse_after_first_minute(drive, before)}
-    assert rmse["before"] > 3.0, rmse  # AssertionError shows both
+    rmse = {"default": _default_rmse_after_first_minute(drive),
+            "before": _default_rmse_after_first_minute(drive, before)}
+    assert rmse["before"] > 3.0, rmse
     assert rmse["default"] < 0.5 * rmse["before"], rmse
-
 
 
 @pytest.mark.slow
@@ -105,6 +106,7 @@ def test_reliability_falls_while_the_compass_contradicts_the_heading():
     assert wrong.sum() > 500, wrong.sum()   # the condition this test is about does occur
     assert np.all(np.degrees(np.asarray(out.heading_bound))[wrong] > 60.0)
     assert np.all(np.asarray(out.heading_reliability)[wrong] < 0.1)
+
 
 def test_seeds_are_split():
     assert not set(sc.TUNING_SEEDS) & set(sc.EVALUATION_SEEDS)
@@ -264,6 +266,6 @@ def test_steady_offset_filter_keeps_slow_compass_errors_out_and_follows_drifting
     default, rate_only = (_default_rmse_after_first_minute(clean, o) for o in ({}, {"filter_rate_significance": 0.0}))
     assert default < 0.7 * rate_only and default < 1.4, (default, rate_only)
     mismatch = sc.make_drive("mixed", "mismatch_1.5", 104, duration_s=600.0)
-    never = {"filter_rate_significance": 1e9, "filter_reacquire_large_deg": 1e9}
-    default, never = (_default_rmse_after_first_minute(mismatch, o) for o in ({}, never))
+    never_follow = {"filter_rate_significance": 1e9, "filter_reacquire_large_deg": 1e9}
+    default, never = (_default_rmse_after_first_minute(mismatch, o) for o in ({}, never_follow))
     assert default < 4.0 and never > 20.0, (default, never)
