@@ -31,7 +31,8 @@ from identification import scenarios as sc  # noqa: E402
 TUNED = ("filter_steady_turn_sigma", "filter_rate_significance", "filter_reject_harden_m",
          "filter_offset_psd", "filter_rate_psd", "filter_rate_sigma0", "filter_check_m", "filter_check_sigma_deg",
          "filter_gate_sigma", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_ec_weight",
-         "filter_turn_sigma", "filter_sigma0_deg", "filter_gm_m", "filter_gm_sigma_deg")
+         "filter_turn_sigma", "filter_sigma0_deg", "filter_gm_m", "filter_gm_sigma_deg", "filter_tilt_sigma_deg",
+         "filter_tilt_m")
 """Only constants of the default mode's filter: the kf_* keys of the Kalman mode stay as bench/tune_kalman.py fitted them."""
 CONDITIONS = tuple(c for c in sc.CONDITIONS if c not in sc.NO_COMPASS_CONDITIONS and c != "mismatch_0")
 

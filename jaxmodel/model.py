@@ -314,12 +314,14 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
                           jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
         drifting = _offset.drifting(params, offset)
+        tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
         offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                              absolute_ok & ~initializing, drifting)
+                                              absolute_ok & ~initializing, drifting, tilt)
         offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
         steady_params = _offset.steady_params(params)
         steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
-        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting)
+        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
+                                   tilt)
         steady = _offset.follow(params, steady, offset, initializing)
         f_delta = steady.delta
         complementary = wrap(wheel_heading + f_delta)

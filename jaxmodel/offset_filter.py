@@ -79,9 +79,16 @@ UNINITIALIZED_BOUND = jnp.pi
 """heading_bound (rad) before any absolute heading started the estimate: nothing supports it."""
 
 
+STATES = ("delta", "beta", "c", "k", "g")
+"""The filter's states, in the order of its covariance."""
+_N = len(STATES)
+_UPPER = tuple((i, j) for i in range(_N) for j in range(i, _N))
+
+
 class OffsetFields(NamedTuple):
-    """x = (delta, beta, c, k): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
-    error (rad), the wheel turn's relative scale error (1); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
+    """x = (delta, beta, c, k, g): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
+    error (rad), the wheel turn's relative scale error (1), the tilt error (rad of heading error heading
+    magnetic east or west); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
     averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
     ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2)."""
 
@@ -89,34 +96,64 @@ class OffsetFields(NamedTuple):
     beta: jnp.ndarray
     c: jnp.ndarray
     k: jnp.ndarray
+    g: jnp.ndarray
     p00: jnp.ndarray
     p01: jnp.ndarray
     p02: jnp.ndarray
     p03: jnp.ndarray
+    p04: jnp.ndarray
     p11: jnp.ndarray
     p12: jnp.ndarray
     p13: jnp.ndarray
+    p14: jnp.ndarray
     p22: jnp.ndarray
     p23: jnp.ndarray
+    p24: jnp.ndarray
     p33: jnp.ndarray
+    p34: jnp.ndarray
+    p44: jnp.ndarray
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
     rejected_m: jnp.ndarray
 
 
-# One float64 vector, and the 4x4 algebra written out on its scalars: inside the vmapped scan,
-# XLA:CPU runs each tiny matmul as its own kernel; written out, the step fuses (bench/bench_run.py).
+# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _product):
+# inside the vmapped scan, XLA:CPU runs each tiny matmul as its own kernel; unrolled, the step fuses
+# (bench/bench_run.py).
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 OffsetState.__module__ = __name__
 
 
+def _covariance(f):
+    """P as a symmetric nested list of scalars."""
+    P = [[None] * _N for _ in range(_N)]
+    for i, j in _UPPER:
+        P[i][j] = P[j][i] = getattr(f, f"p{i}{j}")
+    return P
+
+
+def _upper(P):
+    """The p_ij fields of a nested-list covariance."""
+    return {f"p{i}{j}": P[i][j] for i, j in _UPPER}
+
+
+def _dot(row, column):
+    """sum row[m] column[m], skipping the structural zeros (Python 0) of a transition row."""
+    terms = [r * c if not (isinstance(r, (int, float)) and r == 1) else c
+             for r, c in zip(row, column) if not (isinstance(r, (int, float)) and r == 0)]
+    return sum(terms[1:], terms[0])
+
+
 def init_offset_state(params):
     z = jnp.zeros((), jnp.float64)
-    return OffsetState.pack(OffsetFields(
-        delta=z, beta=z, c=z, k=z, p00=deg(params.filter_sigma0_deg) ** 2, p01=z, p02=z, p03=z,
-        p11=jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2, p12=z, p13=z,
-        p22=deg(params.filter_gm_sigma_deg) ** 2, p23=z, p33=jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2,
-        disturbance=z, since_absolute=z, rejected_m=z))
+    P = [[z] * _N for _ in range(_N)]
+    P[0][0] = deg(params.filter_sigma0_deg) ** 2
+    P[1][1] = jnp.asarray(params.filter_rate_sigma0, jnp.float64) ** 2
+    P[2][2] = deg(params.filter_gm_sigma_deg) ** 2
+    P[3][3] = jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2
+    P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
+    return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
+                                         since_absolute=z, rejected_m=z))
 
 
 def start(params):
@@ -127,57 +164,53 @@ def start(params):
 def predict(params, fs, ad_signed, d_t, alpha):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
 
-    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha], [0, phi_b, 0, 0], [0, 0, phi, 0], [0, 0, 0, 1]].  The coloured
-    compass error is first-order Gauss-Markov over filter_gm_m metres of stationary sigma
-    filter_gm_sigma_deg (anomalies and dip errors are fixed in space, so in distance):
-    phi = exp(-|AD| / filter_gm_m).
+    x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0],
+    [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]].  The coloured compass error and the tilt error are first-order
+    Gauss-Markov in distance (anomalies and road grades are fixed in space): phi = exp(-|AD| / filter_gm_m)
+    of stationary sigma filter_gm_sigma_deg, phi_g = exp(-|AD| / filter_tilt_m) of sigma filter_tilt_sigma_deg.
     """
     f = fs.fields()
     a = ad_signed
     phi = jnp.exp(-d_t / params.filter_gm_m)
+    phi_g = jnp.exp(-d_t / params.filter_tilt_m)
     # Without an absolute heading the rate fades over filter_rate_corr_m metres: what it holds
     # beyond the calibration's correction is learned from a noisy compass, and extrapolating it
     # through a dropout of kilometres turns the heading further off than the wheels alone.
     phi_b = jnp.where(f.since_absolute > 0.0, jnp.exp(-d_t / params.filter_rate_corr_m), 1.0)
-    q0 = params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2
-    q1 = params.filter_rate_psd * d_t
-    q2 = deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi)
-    q3 = params.filter_scale_psd * jnp.abs(alpha)
-    # Row 0 of F is (1, AD, 0, alpha): the offset moves by the rate times AD and by the scale
-    # error times the wheel turn.
-    r0 = f.p00 + a * f.p01 + alpha * f.p03
-    r1 = f.p01 + a * f.p11 + alpha * f.p13
-    r2 = f.p02 + a * f.p12 + alpha * f.p23
-    r3 = f.p03 + a * f.p13 + alpha * f.p33
+    # Row 0 of F: the offset moves by the rate times AD and by the scale error times the wheel turn.
+    F = [[1, a, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]]
+    Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2,
+         params.filter_rate_psd * d_t,
+         deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
+         params.filter_scale_psd * jnp.abs(alpha),
+         deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g))
+    P = _covariance(f)
+    FP = [[_dot(F[i], [P[m][j] for m in range(_N)]) for j in range(_N)] for i in range(_N)]
+    new_P = [[_dot(F[j], FP[i]) + (Q[i] if i == j else 0.0) for j in range(_N)] for i in range(_N)]
+    x = [f.delta, f.beta, f.c, f.k, f.g]
+    delta, beta, c, k, g = (_dot(F[i], x) for i in range(_N))
     return OffsetState.pack(OffsetFields(
-        delta=f.delta + a * f.beta + alpha * f.k, beta=phi_b * f.beta, c=phi * f.c, k=f.k,
-        p00=r0 + a * r1 + alpha * r3 + q0,
-        p01=phi_b * r1,
-        p02=phi * r2,
-        p03=r3,
-        p11=phi_b * phi_b * f.p11 + q1,
-        p12=phi_b * phi * f.p12,
-        p13=phi_b * f.p13,
-        p22=phi * phi * f.p22 + q2,
-        p23=phi * f.p23,
-        p33=f.p33 + q3,
+        delta=delta, beta=beta, c=c, k=k, g=g, **_upper(new_P),
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
-    DELTA = delta + c + white noise (h = [1, 0, 1, 0]).  ``drifting`` (bool, from ``drifting``):
-    the rate filter explains a long disagreement by the wheels, so the compass is neither hardened
-    against nor kept out beyond filter_reacquire_m.  A filter ``lost`` by its own running disagreement
-    restarts from the compass after filter_reacquire_lost_m.  Returns (new state, accepted weight in
-    [0, 1]: 1 a clean sample, near 0 a rejected one).
+    DELTA = delta + c + tilt g + white noise (h = [1, 0, 1, 0, tilt]); ``tilt`` = sin(psi_m) from
+    ``tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m).
+    ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
+    so the compass is neither hardened against nor kept out beyond filter_reacquire_m.  A filter
+    ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
+    Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
-    nu = wrap(delta_meas - f.delta - f.c)
-    # P h and h^T P h.
-    ph0, ph1, ph2, ph3 = f.p00 + f.p02, f.p01 + f.p12, f.p02 + f.p22, f.p03 + f.p23
-    p_hh = ph0 + ph2
+    h = [1, 0, 1, 0, tilt]
+    x = [f.delta, f.beta, f.c, f.k, f.g]
+    nu = wrap(delta_meas - _dot(h, x))
+    P = _covariance(f)
+    ph = [_dot(h, P[i]) for i in range(_N)]  # P h
+    p_hh = _dot(h, ph)
     # Running agreement of DELTA with the wheels over filter_check_m metres.
     keep = jnp.exp(-d_t / params.filter_check_m)
     disturbance = jnp.where(ok, keep * f.disturbance + (1.0 - keep) * nu, f.disturbance)
@@ -193,15 +226,14 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
-    g0, g1, g2, g3 = ph0 * inv, ph1 * inv, ph2 * inv, ph3 * inv
+    gain = [v * inv for v in ph]
     weight = 1.0 / (1.0 + z2 / gate2)
     rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
+    new_x = [v + gi * nu for v, gi in zip(x, gain)]
+    new_P = [[P[i][j] - gain[i] * ph[j] for j in range(_N)] for i in range(_N)]
     new = OffsetFields(
-        delta=wrap(f.delta + g0 * nu), beta=f.beta + g1 * nu, c=f.c + g2 * nu, k=f.k + g3 * nu,
-        p00=f.p00 - g0 * ph0, p01=f.p01 - g0 * ph1, p02=f.p02 - g0 * ph2, p03=f.p03 - g0 * ph3,
-        p11=f.p11 - g1 * ph1, p12=f.p12 - g1 * ph2, p13=f.p13 - g1 * ph3,
-        p22=f.p22 - g2 * ph2, p23=f.p23 - g2 * ph3, p33=f.p33 - g3 * ph3,
-        disturbance=disturbance - (g0 + g2) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
+        wrap(new_x[0]), *new_x[1:], **_upper(new_P),
+        disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
@@ -215,6 +247,18 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting):
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
     weight = jnp.where(ok, weight, 0.0)
     return out, weight
+
+
+def tilt_gain(params, heading):
+    """How much of the tilt error g reaches the compass heading: sin(psi_m), psi_m = heading - V (rad).
+
+    A pitch theta puts the vertical field B_V on a level-mounted compass's forward axis and nothing on
+    its lateral axis, so with g = -(B_V / B_H) theta its heading reads g sin(psi_m) off: most heading
+    magnetic east or west, nothing heading north or south.  (It also changes |B| by -g cos(psi_m) B_H;
+    used as a second measurement of g that made things worse: anomalies dominate |B|, docs/tuning.md.)
+    """
+    return jnp.sin(heading - deg(params.variation_deg))
+
 
 
 def drifting(params, rate_filter):
@@ -281,7 +325,7 @@ def follow(params, steady, rate_filter, initializing):
     """
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
-    taken = OffsetState.pack(f._replace(beta=z, p01=z, p11=z, p12=z, p13=z)).vector
+    taken = OffsetState.pack(f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})).vector
     w = jnp.where(initializing, 1.0, follow_weight(params, rate_filter))[..., None]
     # F-DELTA is an angle: blend the wrapped difference.
     i = OffsetFields._fields.index("delta")

@@ -103,6 +103,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_ec_weight", 0.07855, "1", "weight of the compass error bound E_C (FIG. 8C) in the filter's compass sigma"),
     ParamSpec("filter_gm_m", 179.4, "m", "correlation distance of the compass's coloured error (anomalies, dip on hills)"),
     ParamSpec("filter_gm_sigma_deg", 1.403, "deg", "stationary sigma of the compass's coloured error"),
+    ParamSpec("filter_tilt_sigma_deg", 0.0, "deg", "stationary sigma of the tilt error: the heading error of a level-mounted compass heading magnetic east or west on a grade (tan(dip) x pitch; nothing heading north or south)"),
+    ParamSpec("filter_tilt_m", 300.0, "m", "correlation distance of the tilt error (road grades)"),
     ParamSpec("filter_check_m", 2.53, "m", "distance over which DELTA's agreement with the wheels is averaged (disturbance detection)"),
     ParamSpec("filter_check_sigma_deg", 1.389, "deg", "expected spread of that average on a clean compass"),
     ParamSpec("filter_gate_sigma", 0.4081, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),
@@ -234,7 +236,7 @@ POSITIVE_KEYS = (
     "cal_check_distance_m", "cal_ratio_bound", "cal_stretch_distance_m", "cal_compass_tolerance_deg",
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
-    "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
+    "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_tilt_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
     "filter_reacquire_m", "filter_rate_corr_m", "filter_reacquire_step_m", "filter_reject_harden_m", "filter_reacquire_large_deg", "filter_reacquire_lost_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
@@ -243,7 +245,7 @@ NON_NEGATIVE_KEYS = (
     "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
-    "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
+    "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
     "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_reacquire_drift_deg",
     "hard_iron_min_distance_m", "hard_iron_restart_fraction")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""

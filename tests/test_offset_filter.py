@@ -1,0 +1,78 @@
+"""jaxmodel/offset_filter.py: the unrolled five-state algebra against dense matrices, and the tilt state."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmodel as jm
+from jaxmodel import offset_filter as of
+from jaxmodel.params import deg
+
+
+def _random_state(params, rng):
+    """An offset state with a random mean and a random symmetric positive definite covariance."""
+    a = rng.standard_normal((5, 5)) * np.array([0.05, 1e-4, 0.03, 0.02, 0.04])[:, None]
+    P = a @ a.T + np.diag([1e-4, 1e-9, 1e-4, 1e-5, 1e-4])
+    x = rng.standard_normal(5) * np.array([0.1, 1e-4, 0.02, 0.01, 0.03])
+    f = of.init_offset_state(params).fields()
+    cov = {f"p{i}{j}": jnp.asarray(P[i, j]) for i in range(5) for j in range(i, 5)}
+    return of.OffsetState.pack(f._replace(delta=x[0], beta=x[1], c=x[2], k=x[3], g=x[4], **cov)), x, P
+
+
+def _dense(fs):
+    f = fs.fields()
+    P = np.array([[float(getattr(f, f"p{min(i, j)}{max(i, j)}")) for j in range(5)] for i in range(5)])
+    return np.array([float(v) for v in (f.delta, f.beta, f.c, f.k, f.g)]), P
+
+
+@pytest.fixture
+def params():
+    return jm.make_params({"filter_tilt_sigma_deg": 3.0, "filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-4})
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_predict_is_the_dense_kalman_prediction(params, seed):
+    """x <- F x, P <- F P F^T + Q with the F and Q of ``predict``'s docstring, written as matrices."""
+    rng = np.random.default_rng(seed)
+    fs, x, P = _random_state(params, rng)
+    ad, d_t, alpha = 2.3, 2.3, 0.04
+    got_x, got_P = _dense(of.predict(params, fs, ad, d_t, alpha))
+    phi = np.exp(-d_t / float(params.filter_gm_m))
+    phi_g = np.exp(-d_t / float(params.filter_tilt_m))
+    F = np.array([[1, ad, 0, alpha, 0], [0, 1, 0, 0, 0], [0, 0, phi, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]])
+    Q = np.diag([float(params.filter_offset_psd) * d_t + (float(params.filter_turn_sigma) * alpha) ** 2,
+                 float(params.filter_rate_psd) * d_t,
+                 float(deg(params.filter_gm_sigma_deg)) ** 2 * (1 - phi ** 2),
+                 float(params.filter_scale_psd) * alpha,
+                 float(deg(params.filter_tilt_sigma_deg)) ** 2 * (1 - phi_g ** 2)])
+    np.testing.assert_allclose(got_x, F @ x, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(got_P, F @ P @ F.T + Q, rtol=1e-10, atol=1e-18)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_update_is_the_dense_kalman_update_for_a_clean_sample(params, seed):
+    """A sample in agreement (no gate, no inflation) is the textbook update with h = [1, 0, 1, 0, sin(psi_m)]."""
+    rng = np.random.default_rng(seed)
+    fs, x, P = _random_state(params, rng)
+    heading = 1.1
+    tilt = of.tilt_gain(params, jnp.asarray(heading))
+    h = np.array([1.0, 0.0, 1.0, 0.0, np.sin(heading)])
+    # A measurement close to the prediction and a long check distance: z2 ~ 0, the gate is not touched.
+    p = params._replace(filter_check_m=jnp.asarray(1e9), filter_compass_corr_m=jnp.asarray(1e-3))
+    meas = float(h @ x) + 1e-5
+    sigma = 0.05
+    new, weight = of.update(p, fs, jnp.asarray(meas), jnp.asarray(sigma), jnp.asarray(1.0), 1.0, jnp.asarray(True),
+                            jnp.asarray(False), tilt)
+    got_x, got_P = _dense(new)
+    s = h @ P @ h + sigma ** 2
+    k = P @ h / s
+    np.testing.assert_allclose(got_x, x + k * (meas - h @ x), rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(got_P, P - np.outer(k, h @ P), rtol=1e-9, atol=1e-16)
+    assert float(weight) > 0.99
+
+
+def test_tilt_gain_is_sin_of_the_magnetic_heading():
+    """Nothing heading magnetic north or south, all of g heading east or west (variation V taken off)."""
+    p = jm.make_params({"variation_deg": 10.0})
+    for true_deg, expected in [(10.0, 0.0), (100.0, 1.0), (190.0, 0.0), (280.0, -1.0)]:
+        assert float(of.tilt_gain(p, jnp.asarray(np.radians(true_deg)))) == pytest.approx(expected, abs=1e-12)
