@@ -1,4 +1,4 @@
-"""F-DELTA as a robust four-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
+"""F-DELTA as a robust five-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
 
 The seed low-passes DELTA = H_C - H_W with the distance constant T_C = D_N / (D_T F) and says
 the filter "can be implemented ... in a variety of other filtering relationships depending on
@@ -13,14 +13,24 @@ We filter exactly that model, per travelled metre:
                                                           while no absolute heading arrives)
     compass c_{k+1}     = phi c_k + w_c, phi = exp(-|AD|/filter_gm_m)   (anomalies, dip: coloured)
     scale   k_{k+1}     = k_k + w_k                     (the wheel turn alpha's relative error)
-    DELTA_k = delta_k + c_k + white compass error
+    tilt    g_{k+1}     = phi_g g_k + w_g, phi_g = exp(-|AD|/filter_tilt_m)   (road grades)
+    DELTA_k = delta_k + c_k + sin(psi_m) g_k + white compass error
 
 with process noise ``filter_offset_psd`` per metre plus (``filter_turn_sigma`` alpha)^2 per turn on
 the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
 ``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C) counted once per
 ``filter_compass_corr_m`` metres, divided by the seed's factor F (FIG. 8E: F > 1 trusts the compass
-more), ``filter_scale_psd`` per radian turned on k.  It is a four-state Kalman filter; with beta
-and k held at 0 and a fixed gain it is the seed's first-order filter.
+more), ``filter_scale_psd`` per radian turned on k.  It is a five-state Kalman filter; with beta,
+k and g held at 0 and a fixed gain it is the seed's first-order filter.
+
+The tilt state g is the dip error of a level-mounted two-axis compass (the seed's FIG. 3A shows
+dip errors; it does not model them).  A pitch theta puts the vertical field B_V on the compass's
+forward axis and nothing on its lateral axis, so its heading reads g sin(psi_m) off, g = -(B_V /
+B_H) theta: at a dip of 60-70 deg a 2 % grade is 2-3 deg heading magnetic east or west and nothing
+heading north or south.  So the compass's error is not the same on every road: with g the filter
+weighs it by the heading (``tilt_gain``) and, at a turn, tells g from the wheels' offset.  Grades
+change over hundreds of metres, so g is Gauss-Markov over ``filter_tilt_m``, of stationary sigma
+``filter_tilt_sigma_deg`` (docs/tuning.md, "Stop 21").
 
 The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B, T_F, a or dpp
 are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
