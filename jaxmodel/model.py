@@ -322,7 +322,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
         steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
                                    tilt)
-        steady = _offset.follow(params, steady, offset, initializing)
+        steady = _offset.follow(params, steady, offset, initializing, d_t)
         f_delta = steady.delta
         complementary = wrap(wheel_heading + f_delta)
 

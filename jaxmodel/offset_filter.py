@@ -125,6 +125,7 @@ class OffsetFields(NamedTuple):
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
     rejected_m: jnp.ndarray
+    since_drift: jnp.ndarray
 
 
 # One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _product):
@@ -163,7 +164,7 @@ def init_offset_state(params):
     P[3][3] = jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2
     P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
     return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
-                                         since_absolute=z, rejected_m=z))
+                                         since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M))
 
 
 def start(params):
@@ -201,7 +202,8 @@ def predict(params, fs, ad_signed, d_t, alpha):
     delta, beta, c, k, g = (_dot(F[i], x) for i in range(_N))
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, **_upper(new_P),
-        disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m))
+        disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
+        since_drift=f.since_drift))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
@@ -244,7 +246,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **_upper(new_P),
         disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
-        rejected_m=rejected_m)
+        rejected_m=rejected_m, since_drift=f.since_drift)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
@@ -324,21 +326,35 @@ def follow_weight(params, rate_filter):
     return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
 
 
-def follow(params, steady, rate_filter, initializing):
+NEVER_DRIFTED_M = 1e12
+"""``since_drift`` of a filter that has not seen the wheels drift."""
+
+
+def follow(params, steady, rate_filter, initializing, d_t):
     """The steady F-DELTA drawn to the rate filter's state (rate taken out) while that rate is significant.
 
     The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
     before the calibration has caught it), but on clean drives the rate it learns from a compass with
     errors correlated over kilometres (dip on hills, anomalies) is noise that it integrates.  The
     steady filter has no rate; it gives the heading, and takes the rate filter's offset whenever the
-    wheels are seen to drift (docs/tuning.md).
+    wheels are seen to drift, and for filter_follow_hold_m after a drift larger than
+    filter_follow_hold_rate (docs/tuning.md).  ``since_drift`` of the steady filter counts the metres
+    since; d_t (m) is this sample's distance.
     """
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
     taken = OffsetState.pack(f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})).vector
-    w = jnp.where(initializing, 1.0, follow_weight(params, rate_filter))[..., None]
+    w_rate = follow_weight(params, rate_filter)
+    # After a drift the calibration takes out most of it within kilometres, and what remains (tens of
+    # µrad/m, no longer "significant") the rate filter still follows while the steady one lags by degrees:
+    # it keeps following for filter_follow_hold_m after the rate was last significant.
+    large = jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate
+    since = jnp.where((w_rate > 0.5) & large, 0.0, steady.since_drift + d_t)
+    hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
+    w = jnp.where(initializing, 1.0, jnp.maximum(w_rate, hold))[..., None]
     # F-DELTA is an angle: blend the wrapped difference.
     i = OffsetFields._fields.index("delta")
     diff = (taken - steady.vector).at[..., i].set(wrap(taken[..., i] - steady.vector[..., i]))
     blended = steady.vector + w * diff
+    blended = blended.at[..., OffsetFields._fields.index("since_drift")].set(since)
     return OffsetState(blended.at[..., i].set(wrap(blended[..., i])))
