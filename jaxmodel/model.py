@@ -198,7 +198,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     if robust:
         d_left, d_right, raw_ok, speed_ok, kept, guard_state = _guard.guard(
             params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
-            jnp.maximum(dpp_left, dpp_right))
+            dpp_left, dpp_right)
         n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
         n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
         # odometer_valid reports counter faults (a wheel beyond max_speed, non-finite counts), as

@@ -14,7 +14,10 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
 Which wheel is at fault: the one whose increment departs more from its own recent rate.  The
 whole number of pulses by which it departs from the other wheel's increment plus (or minus) the
 predicted dD is removed from it, so AD and the turn of that sample stay what the vehicle did and
-the wheel keeps its own count; when both wheels fail (or after
+the wheel keeps its own count.  That whole number is exact when it is a counter modulus of
+``COMMON_MODULI`` (a counter that wraps at another modulus than ``counter_modulus`` says) or
+undoes the pulses last removed from that wheel (a spike that returns), within
+``SNAP_PULSES``; otherwise it can miss by one pulse.  When both wheels fail (or after
 ``GUARD_MAX_SUBSTITUTED`` substitutions in a row) both are replaced by their predictions for
 that sample.  The counter references always follow the counters (resync), so a burst that
 permanently offsets one counter costs nothing after its sample, and a spike costs nothing
@@ -33,6 +36,10 @@ GUARD_TAU_S = 0.3
 """Time constant (s) of the wheel and dD rates the next increments are predicted from."""
 GUARD_MAX_SUBSTITUTED = 20.0
 """After this many substituted samples in a row the counts are believed again (a real jump)."""
+COMMON_MODULI = (256.0, 1000.0, 1024.0, 4096.0, 10000.0, 16384.0, 32768.0, 65536.0, 100000.0)
+"""Counter moduli of wheel-pulse counters (8-16 bit, decimal): a jump by one of them is a wrap."""
+SNAP_PULSES = 3.0
+"""A removal within this many pulses of a modulus or of a returning spike is taken as exactly that."""
 
 
 class GuardFields(NamedTuple):
@@ -40,6 +47,8 @@ class GuardFields(NamedTuple):
     rate_right: jnp.ndarray  # m/s
     rate_dD: jnp.ndarray     # m/s, time-smoothed dD rate
     substituted: jnp.ndarray  # substituted samples in a row
+    removed_left: jnp.ndarray   # pulses last removed from the left counter (0: none pending)
+    removed_right: jnp.ndarray  # pulses last removed from the right counter
 
 
 GuardState = packed_state(GuardFields, "GuardState", "State of the odometer plausibility guard (one float64 vector).")
@@ -48,17 +57,30 @@ GuardState.__module__ = __name__
 
 def init_guard_state():
     z = jnp.zeros((), jnp.float64)
-    return GuardState.pack(GuardFields(z, z, z, z))
+    return GuardState.pack(GuardFields(z, z, z, z, z, z))
 
 
-def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
+def _snap(pulses, removed):
+    """The whole number of spurious pulses: a common modulus (either sign) or -removed (a spike
+    returning) when within SNAP_PULSES of ``pulses`` (the nearest), else ``pulses`` rounded."""
+    candidates = jnp.stack([jnp.asarray(m, jnp.float64) * sign for m in COMMON_MODULI for sign in (1.0, -1.0)]
+                           + [jnp.where(removed != 0.0, -removed, jnp.inf)])
+    miss = jnp.abs(pulses - candidates)
+    best = jnp.argmin(miss)
+    return jnp.where(miss[best] <= SNAP_PULSES, candidates[best], jnp.round(pulses))
+
+
+def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
     """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, new GuardState).
+
+    dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
     raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
     wheel beyond max_speed is a counter fault, not motion); kept: the sample's motion is used (raw
     or substituted).  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
     """
     g = gs.fields()
+    dpp = jnp.maximum(dpp_left, dpp_right)
     step_dt = jnp.where(time_ok, dt, 0.1)
     pred_left, pred_right = g.rate_left * step_dt, g.rate_right * step_dt
     pred_dD = g.rate_dD * step_dt
@@ -77,8 +99,9 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
     # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
-    spurious_left = jnp.round((d_left - new_left) / dpp) * dpp
-    spurious_right = jnp.round((d_right - new_right) / dpp) * dpp
+    pulses_left = jnp.where(blame_left, _snap((d_left - new_left) / dpp_left, g.removed_left), 0.0)
+    pulses_right = jnp.where(blame_left, 0.0, _snap((d_right - new_right) / dpp_right, g.removed_right))
+    spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
     new_right = jnp.where(both, new_right, d_right - spurious_right)
     d_left = jnp.where(fix, new_left, d_left)
@@ -98,5 +121,14 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp):
         rate_left=g.rate_left + w * (d_left * inv_dt - g.rate_left),
         rate_right=g.rate_right + w * (d_right * inv_dt - g.rate_right),
         rate_dD=g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
-        substituted=substituted))
+        substituted=substituted,
+        removed_left=_pending(fix & ~both, pulses_left, g.removed_left),
+        removed_right=_pending(fix & ~both, pulses_right, g.removed_right)))
     return d_left, d_right, raw_ok, counts_ok & ~left_fast & ~right_fast, kept, new
+
+
+def _pending(fixed, pulses, removed):
+    """Pulses last removed from a counter: this sample's when it removed some (0 when it undid the
+    previous removal exactly: nothing pending any more), else unchanged."""
+    undone = pulses == -removed
+    return jnp.where(fixed & (pulses != 0.0), jnp.where(undone, 0.0, pulses), removed)

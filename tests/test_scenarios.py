@@ -285,3 +285,33 @@ def test_the_steady_filter_keeps_following_after_a_tyre_mismatch():
             "no_hold": _default_rmse_after_first_minute(drive, {"filter_follow_hold_m": 0.0})}
     assert rmse["no_hold"] > 3.0, rmse
     assert rmse["default"] < 0.5 * rmse["no_hold"], rmse
+
+
+@pytest.mark.slow
+def test_a_counter_that_wraps_at_another_modulus_is_decoded_exactly():
+    """Counters that wrap at 10,000 while counter_modulus says 65,536: every wrap is a jump by a common modulus
+    (plausibility.COMMON_MODULI), removed exactly, so the heading is the one decoded with the right modulus, to
+    within 1e-4 rad: the wrap samples are still reported as counter faults (odometer_valid 0), and the calibration
+    skips them (measured 1.2e-5 rad).  Before the snap each wrap could leave a pulse: 1.32 deg against 0.75 deg on
+    tuning seeds 101-106."""
+    drive = sc.make_drive("urban", "wrong_modulus", 101, duration_s=300.0)
+    wrong = _run(drive)
+    right = _run(drive, {"counter_modulus": float(sc.WRONG_MODULUS)})
+    assert np.max(np.abs(np.asarray(wrong.heading) - np.asarray(right.heading))) < 1e-4
+
+
+@pytest.mark.slow
+def test_a_spike_that_returns_leaves_nothing_behind():
+    """A +3000-count spike on one counter for one sample: the pulses removed at the spike and at its return are the
+    same number (the return snaps to it), so after the return the counts are exactly the clean ones and the heading
+    differs by no more than the one-sample wobble it had (plausibility.SNAP_PULSES)."""
+    drive = sc.make_drive("highway", "baseline", 102, duration_s=240.0)
+    moving = np.flatnonzero(np.asarray(drive.truth["speed_mps"]) > 10.0)
+    at = int(moving[len(moving) // 2])
+    left = np.asarray(drive.columns["left_pulses"], np.int64).copy()
+    left[at] = (left[at] + 3000) % 65536
+    spiked = sc.ScenarioDrive(drive.scenario, "spike", drive.seed, {**drive.columns, "left_pulses": left},
+                              drive.truth, drive.params)
+    diff = np.degrees(np.abs(np.asarray(_run(spiked).heading) - np.asarray(_run(drive).heading)))
+    assert diff[:at].max() == 0.0
+    assert diff[at + 2:].max() < 0.02, diff[at + 2:].max()
