@@ -63,11 +63,17 @@ def init_guard_state():
 def _snap(pulses, removed):
     """The whole number of spurious pulses: a common modulus (either sign) or -removed (a spike
     returning) when within SNAP_PULSES of ``pulses`` (the nearest), else ``pulses`` rounded."""
-    candidates = jnp.stack([jnp.asarray(m, jnp.float64) * sign for m in COMMON_MODULI for sign in (1.0, -1.0)]
-                           + [jnp.where(removed != 0.0, -removed, jnp.inf)])
-    miss = jnp.abs(pulses - candidates)
-    best = jnp.argmin(miss)
-    return jnp.where(miss[best] <= SNAP_PULSES, candidates[best], jnp.round(pulses))
+    # A chain of scalar selections rather than argmin over a stacked vector: the native FMU's
+    # lowering (fmu/jaxpr_lower.py) covers scalar primitives.
+    best = jnp.round(pulses)
+    best_miss = jnp.asarray(SNAP_PULSES, jnp.float64)
+    moduli = [(m * sign, True) for m in COMMON_MODULI for sign in (1.0, -1.0)]
+    for candidate, valid in moduli + [(-removed, removed != 0.0)]:
+        miss = jnp.abs(pulses - candidate)
+        nearer = valid & (miss <= best_miss)
+        best = jnp.where(nearer, candidate, best)
+        best_miss = jnp.where(nearer, miss, best_miss)
+    return best
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
