@@ -71,7 +71,9 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   1 + (R / ``filter_reject_harden_m``)^2 over R metres of rejection, so that its soft-gated
   samples do not creep in (they moved F-DELTA 6 deg in 1.2 km on highway/hard_iron_shift/103).
   A compass that disagrees by more than ``filter_reacquire_large_deg`` (``lost``) restarts it
-  after ``filter_reacquire_lost_m``: the heading itself is wrong (a drive started in a garage).
+  after ``filter_reacquire_lost_m``: the heading itself is wrong (a drive started in a garage);
+  after ``filter_reacquire_lost_steady_m`` when that disagreement is steady (``wander`` below
+  LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.
 """
 
 from __future__ import annotations
@@ -126,6 +128,8 @@ class OffsetFields(NamedTuple):
     since_absolute: jnp.ndarray
     rejected_m: jnp.ndarray
     since_drift: jnp.ndarray
+    level: jnp.ndarray
+    wander: jnp.ndarray
 
 
 # One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _product):
@@ -164,7 +168,8 @@ def init_offset_state(params):
     P[3][3] = jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2
     P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
     return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
-                                         since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M))
+                                         since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
+                                         level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0))
 
 
 def start(params):
@@ -203,7 +208,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, **_upper(new_P),
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
-        since_drift=f.since_drift))
+        since_drift=f.since_drift, level=f.level, wander=f.wander))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
@@ -234,6 +239,12 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
     is_lost = lost(params, disturbance)
+    # How steadily the compass disagrees, over LOST_STEADY_M: a heading started wrong (a garage) is
+    # contradicted by a constant, an anomaly that turns the field as far wanders within metres.
+    blend = jnp.where(ok, -jnp.expm1(-d_t / LOST_STEADY_M), 0.0)
+    level = f.level + blend * wrap(nu - f.level)
+    wander = f.wander + blend * (wrap(nu - level) ** 2 - f.wander)
+    steadily = jnp.sqrt(wander) < deg(LOST_STEADY_DEG)
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
@@ -246,13 +257,14 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **_upper(new_P),
         disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
-        rejected_m=rejected_m, since_drift=f.since_drift)
+        rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
-    restart = start(params).fields()._replace(delta=wrap(delta_meas))
-    reacquire = rejected_m > jnp.where(is_lost, params.filter_reacquire_lost_m,
+    restart = start(params).fields()._replace(delta=wrap(delta_meas), level=level, wander=wander)
+    lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, params.filter_reacquire_lost_m)
+    reacquire = rejected_m > jnp.where(is_lost, lost_after,
                                        jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
     new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
     old = f._replace(disturbance=disturbance)
@@ -278,6 +290,12 @@ def drifting(params, rate_filter):
     filter_reacquire_m (bool): a disagreement with the compass is then the wheels' (a lock-out), not the
     compass's."""
     return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
+
+
+LOST_STEADY_M = 10.0
+"""Distance (m) over which the steadiness of a lost filter's disagreement is judged."""
+LOST_STEADY_DEG = 15.0
+"""A disagreement that wanders less than this (RMS about its mean, deg) is steady."""
 
 
 def lost(params, disturbance):

@@ -113,7 +113,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_reacquire_drift_deg", 2.0, "deg", "re-acquisition after filter_reacquire_m only when the rate filter's rate turns the offset by more than this over that distance (the wheels' drift explains the disagreement: a lock-out)"),
     ParamSpec("filter_reacquire_step_m", 5000.0, "m", "otherwise a compass rejected this many metres in a row restarts F-DELTA (a step in the wheel heading)"),
     ParamSpec("filter_reacquire_large_deg", 60.0, "deg", "a compass that disagrees with F-DELTA by more than this (averaged over filter_check_m) says the heading itself is wrong (a drive started in a garage)"),
-    ParamSpec("filter_reacquire_lost_m", 10.0, "m", "such a compass restarts F-DELTA after this many metres of rejection"),
+    ParamSpec("filter_reacquire_lost_m", 100.0, "m", "such a compass restarts F-DELTA after this many metres of rejection"),
+    ParamSpec("filter_reacquire_lost_steady_m", 10.0, "m", "and after this many when that disagreement is steady (wanders less than 15 deg RMS over 10 m: a heading started wrong in a garage, not an anomaly)"),
     ParamSpec("filter_reject_harden_m", 699.1, "m", "a compass rejected R metres in a row has its variance multiplied by 1 + (R / this)^2 unless the rate filter's rate explains the disagreement (a persistent compass error does not creep in)"),
     ParamSpec("filter_reacquire_m", 1000.0, "m", "a compass rejected this many metres in a row restarts F-DELTA from it (re-acquisition after a lock-out)"),
     ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
@@ -239,7 +240,7 @@ POSITIVE_KEYS = (
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
     "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
     "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_tilt_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
-    "filter_reacquire_m", "filter_rate_corr_m", "filter_reacquire_step_m", "filter_reject_harden_m", "filter_reacquire_large_deg", "filter_reacquire_lost_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
+    "filter_reacquire_m", "filter_rate_corr_m", "filter_reacquire_step_m", "filter_reject_harden_m", "filter_reacquire_large_deg", "filter_reacquire_lost_m", "filter_reacquire_lost_steady_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
