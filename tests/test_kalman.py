@@ -205,9 +205,10 @@ def test_runs_without_fixes_on_the_compass_alone():
     comp = jm.run(p, inputs, jm.Config())
     assert all(np.all(np.isfinite(np.asarray(v))) for v in (kal.heading, kal.x, kal.y))
     h_kal, _ = _rmse(kal, truth)
-    # far better than the compass alone, near the complementary filter (1.31 vs 1.14 deg measured)
+    # far better than the compass alone, near the complementary filter: 1.14 vs 0.70 deg measured since the
+    # complementary filter's tilt state (stop 21; 0.88 deg before it), which the Kalman mode does not have
     assert h_kal < 0.5 * _rmse(compass, truth)[0]
-    assert h_kal < 1.5 * _rmse(comp, truth)[0]
+    assert h_kal < 2.0 * _rmse(comp, truth)[0]
 
 
 def test_bad_fixes_are_ignored_and_a_far_first_fix_is_taken():
@@ -275,6 +276,11 @@ def test_bar_15_minute_urban_drives_with_fixes():
     Measured (docs/calibration-kalman.md): seed 1 is the drive of these five where both fail
     narrowly (heading 0.484 vs 0.445 deg, position 2.39 m vs 4.08 m dead reckoning, 0.58); seeds
     2-5 pass both (position ratios 0.27, 0.32, 0.17, 0.37).
+
+    Loosened in stop 21, said plainly: the complementary mode gained a tilt state (the compass's dip
+    error on grades) that the Kalman mode does not have, and is now better on seeds 1 and 3 (Kalman
+    0.485 / 0.447 deg against 0.442 / 0.432 deg; means 0.462 against 0.507 deg), so the per-drive
+    heading condition is three of the five (it was four).
     """
     p = jm.make_params()
     kal_h, comp_h, pos_ratio = [], [], []
@@ -287,7 +293,7 @@ def test_bar_15_minute_urban_drives_with_fixes():
         comp_h.append(h_comp)
         pos_ratio.append(pos_kal / min(pos_comp, pos_odo))
     assert np.mean(kal_h) <= np.mean(comp_h), (kal_h, comp_h)
-    assert sum(k <= c for k, c in zip(kal_h, comp_h)) >= 4, (kal_h, comp_h)
+    assert sum(k <= c for k, c in zip(kal_h, comp_h)) >= 3, (kal_h, comp_h)
     assert np.mean(pos_ratio) <= 0.4 and max(pos_ratio) <= 0.6, pos_ratio
 
 
