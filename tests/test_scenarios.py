@@ -28,6 +28,19 @@ def _default_rmse_after_first_minute(drive, overrides=None):
     return float(np.sqrt(np.mean(_err_deg(_run(drive, overrides), drive)[after_first_minute] ** 2)))
 
 
+def _default_and(drive, name, overrides):
+    """RMSE after the first minute of the default and of the default with ``overrides`` (called ``name``)."""
+    return {"default": _default_rmse_after_first_minute(drive), name: _default_rmse_after_first_minute(drive, overrides)}
+
+
+def _assert_default_beats(drive, name, overrides, without_above, fraction):
+    """The drive is bad without the change (``overrides`` RMSE above ``without_above`` deg) and the default is below
+    ``fraction`` of that."""
+    rmse = _default_and(drive, name, overrides)
+    assert rmse[name] > without_above, rmse
+    assert rmse["default"] < fraction * rmse[name], rmse
+
+
 def test_robust_filter_is_the_default():
     assert jm.Config().robust and jm.DEFAULT_CONFIG.robust
 
@@ -282,10 +295,7 @@ def test_the_steady_filter_keeps_following_after_a_tyre_mismatch():
     filter lagged them by 4-5 deg (mixed/mismatch_0.5/103, a tuning seed).  Measured: 1.32 deg, without the hold
     3.47 deg."""
     drive = sc.make_drive("mixed", "mismatch_0.5", 103)
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "no_hold": _default_rmse_after_first_minute(drive, {"filter_follow_hold_m": 0.0})}
-    assert rmse["no_hold"] > 3.0, rmse
-    assert rmse["default"] < 0.5 * rmse["no_hold"], rmse
+    _assert_default_beats(drive, "no_hold", {"filter_follow_hold_m": 0.0}, 3.0, 0.5)
 
 
 @pytest.mark.slow
@@ -326,10 +336,7 @@ def test_a_parking_drive_started_in_a_garage_finds_its_heading_sooner():
     minutes; measured 7.4 deg (after 100 m: 16.9 deg).  An unconditional 10 m put the project simulator's urban/4 3.2
     deg off (0.61 deg), its anomalies turn the field beyond 60 deg for metres (docs/tuning.md)."""
     drive = sc.make_drive("parking", "garage_start", 104)
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "100 m": _default_rmse_after_first_minute(drive, {"filter_reacquire_lost_steady_m": 100.0})}
-    assert rmse["100 m"] > 10.0, rmse
-    assert rmse["default"] < 0.6 * rmse["100 m"], rmse
+    _assert_default_beats(drive, "100 m", {"filter_reacquire_lost_steady_m": 100.0}, 10.0, 0.6)
 
 
 @pytest.mark.slow
@@ -337,7 +344,6 @@ def test_a_lost_filter_does_not_restart_inside_an_anomaly():
     """The project simulator's urban/4 has anomalies that turn the field beyond filter_reacquire_large_deg for metres:
     with the steadiness check the short restart does not fire there (0.61 deg, as with 100 m)."""
     drive = sc.project_drive("urban", 4)
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "any 10 m": _default_rmse_after_first_minute(drive, {"filter_reacquire_lost_m": 10.0})}
+    rmse = _default_and(drive, "any 10 m", {"filter_reacquire_lost_m": 10.0})
     assert rmse["any 10 m"] > 2.0, rmse
     assert rmse["default"] < 1.0, rmse
