@@ -102,7 +102,10 @@ class OffsetFields(NamedTuple):
     error (rad), the wheel turn's relative scale error (1), the tilt error (rad of heading error heading
     magnetic east or west); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
     averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
-    ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2)."""
+    ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2);
+    ``since_drift`` metres since the rate filter's rate was last large and significant (``follow``);
+    ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
+    LOST_STEADY_M (how steadily the compass disagrees)."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
@@ -132,7 +135,7 @@ class OffsetFields(NamedTuple):
     wander: jnp.ndarray
 
 
-# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _product):
+# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _dot):
 # inside the vmapped scan, XLA:CPU runs each tiny matmul as its own kernel; unrolled, the step fuses
 # (bench/bench_run.py).
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
@@ -169,6 +172,7 @@ def init_offset_state(params):
     P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
     return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
+                                         # unsteady until LOST_STEADY_M of compass samples said otherwise
                                          level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0))
 
 
