@@ -162,6 +162,11 @@ def _dot(row, column):
     return sum(terms[1:], terms[0])
 
 
+def _scaled(v, factor):
+    """v times factor, skipping a factor of exactly 1.0 (a Python float: one operation less per step)."""
+    return v if isinstance(factor, float) and factor == 1.0 else v * factor
+
+
 def init_offset_state(params):
     z = jnp.zeros((), jnp.float64)
     P = [[z] * _N for _ in range(_N)]
@@ -197,20 +202,27 @@ def predict(params, fs, ad_signed, d_t, alpha):
     # beyond the calibration's correction is learned from a noisy compass, and extrapolating it
     # through a dropout of kilometres turns the heading further off than the wheels alone.
     phi_b = jnp.where(f.since_absolute > 0.0, jnp.exp(-d_t / params.filter_rate_corr_m), 1.0)
-    # Row 0 of F: the offset moves by the rate times AD and by the scale error times the wheel turn.
-    F = [[1, a, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]]
+    # F is diagonal but for its row 0: the offset moves by the rate times AD and by the scale error
+    # times the wheel turn.  Written on that structure: every operation is a kernel of its own inside
+    # the vmapped scan (the dense 5x5 products made the step 3x slower, bench/bench_run.py).
+    d = (1.0, phi_b, phi, 1.0, phi_g)
     Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2,
          params.filter_rate_psd * d_t,
          deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
          params.filter_scale_psd * jnp.abs(alpha),
          deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g))
     P = _covariance(f)
-    FP = [[_dot(F[i], [P[m][j] for m in range(_N)]) for j in range(_N)] for i in range(_N)]
-    new_P = [[_dot(F[j], FP[i]) + (Q[i] if i == j else 0.0) for j in range(_N)] for i in range(_N)]
-    x = [f.delta, f.beta, f.c, f.k, f.g]
-    delta, beta, c, k, g = (_dot(F[i], x) for i in range(_N))
+    r = [P[0][m] + a * P[1][m] + alpha * P[3][m] for m in range(_N)]  # row 0 of F P
+    new_P = {}
+    for i, j in _UPPER:
+        if i == 0:
+            v = r[0] + a * r[1] + alpha * r[3] if j == 0 else _scaled(r[j], d[j])
+        else:
+            v = _scaled(_scaled(P[i][j], d[i]), d[j])
+        new_P[f"p{i}{j}"] = v + Q[i] if i == j else v
+    delta, beta, c, k, g = f.delta + a * f.beta + alpha * f.k, phi_b * f.beta, phi * f.c, f.k, phi_g * f.g
     return OffsetState.pack(OffsetFields(
-        delta=delta, beta=beta, c=c, k=k, g=g, **_upper(new_P),
+        delta=delta, beta=beta, c=c, k=k, g=g, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
         since_drift=f.since_drift, level=f.level, wander=f.wander))
 
@@ -257,9 +269,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     weight = 1.0 / (1.0 + z2 / gate2)
     rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
     new_x = [v + gi * nu for v, gi in zip(x, gain)]
-    new_P = [[P[i][j] - gain[i] * ph[j] for j in range(_N)] for i in range(_N)]
+    new_P = {f"p{i}{j}": P[i][j] - gain[i] * ph[j] for i, j in _UPPER}
     new = OffsetFields(
-        wrap(new_x[0]), *new_x[1:], **_upper(new_P),
+        wrap(new_x[0]), *new_x[1:], **new_P,
         disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
@@ -270,9 +282,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, params.filter_reacquire_lost_m)
     reacquire = rejected_m > jnp.where(is_lost, lost_after,
                                        jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
-    new = OffsetFields(*[jnp.where(reacquire, a, b) for a, b in zip(restart, new)])
-    old = f._replace(disturbance=disturbance)
-    out = OffsetState.pack(OffsetFields(*[jnp.where(ok, a, b) for a, b in zip(new, old)]))
+    # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
+    new = jnp.where(reacquire, OffsetState.pack(restart).vector, OffsetState.pack(new).vector)
+    out = OffsetState(jnp.where(ok, new, fs.vector))
     weight = jnp.where(ok, weight, 0.0)
     return out, weight
 

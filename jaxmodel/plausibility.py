@@ -38,6 +38,7 @@ GUARD_MAX_SUBSTITUTED = 20.0
 """After this many substituted samples in a row the counts are believed again (a real jump)."""
 COMMON_MODULI = (256.0, 1000.0, 1024.0, 4096.0, 10000.0, 16384.0, 32768.0, 65536.0, 100000.0)
 """Counter moduli of wheel-pulse counters (8-16 bit, decimal): a jump by one of them is a wrap."""
+_SIGNED_MODULI = tuple(m * sign for m in COMMON_MODULI for sign in (1.0, -1.0))
 SNAP_PULSES = 3.0
 """A removal within this many pulses of a modulus or of a returning spike is taken as exactly that."""
 
@@ -63,17 +64,13 @@ def init_guard_state():
 def _snap(pulses, removed):
     """The whole number of spurious pulses: a common modulus (either sign) or -removed (a spike
     returning) when within SNAP_PULSES of ``pulses`` (the nearest), else ``pulses`` rounded."""
-    # A chain of scalar selections rather than argmin over a stacked vector: the native FMU's
-    # lowering (fmu/jaxpr_lower.py) covers scalar primitives.
-    best = jnp.round(pulses)
-    best_miss = jnp.asarray(SNAP_PULSES, jnp.float64)
-    moduli = [(m * sign, True) for m in COMMON_MODULI for sign in (1.0, -1.0)]
-    for candidate, valid in moduli + [(-removed, removed != 0.0)]:
-        miss = jnp.abs(pulses - candidate)
-        nearer = valid & (miss <= best_miss)
-        best = jnp.where(nearer, candidate, best)
-        best_miss = jnp.where(nearer, miss, best_miss)
-    return best
+    # One small vector of candidates, reduced with min and max (no argmin: the native FMU's lowering,
+    # fmu/jaxpr_lower.py, has none); a chain of scalar selections cost 2x the robust step's time.
+    candidates = jnp.concatenate([jnp.asarray(_SIGNED_MODULI), jnp.where(removed != 0.0, -removed, jnp.inf)[None]])
+    miss = jnp.abs(pulses - candidates)
+    best_miss = jnp.min(miss)
+    nearest = jnp.max(jnp.where(miss == best_miss, candidates, -jnp.inf))
+    return jnp.where(best_miss <= SNAP_PULSES, nearest, jnp.round(pulses))
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
