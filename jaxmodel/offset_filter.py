@@ -155,16 +155,20 @@ def _upper(P):
     return {f"p{i}{j}": P[i][j] for i, j in _UPPER}
 
 
-def _dot(row, column):
-    """sum row[m] column[m], skipping the structural zeros (Python 0) of a transition row."""
-    terms = [r * c if not (isinstance(r, (int, float)) and r == 1) else c
-             for r, c in zip(row, column) if not (isinstance(r, (int, float)) and r == 0)]
-    return sum(terms[1:], terms[0])
+def _is_constant(v, value):
+    """Whether v is the Python number ``value`` (a structural 0 or 1, known at trace time)."""
+    return isinstance(v, (int, float)) and v == value
 
 
 def _scaled(v, factor):
-    """v times factor, skipping a factor of exactly 1.0 (a Python float: one operation less per step)."""
-    return v if isinstance(factor, float) and factor == 1.0 else v * factor
+    """v times factor, skipping a factor of exactly 1 (one operation less per step)."""
+    return v if _is_constant(factor, 1) else v * factor
+
+
+def _dot(row, column):
+    """sum row[m] column[m], skipping the structural zeros and ones (Python numbers) of ``row``."""
+    terms = [_scaled(c, r) for r, c in zip(row, column) if not _is_constant(r, 0)]
+    return sum(terms[1:], terms[0])
 
 
 def init_offset_state(params):

@@ -102,8 +102,10 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
     # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
-    pulses_left = jnp.where(blame_left, _snap((d_left - new_left) / dpp_left, g.removed_left), 0.0)
-    pulses_right = jnp.where(blame_left, 0.0, _snap((d_right - new_right) / dpp_right, g.removed_right))
+    # Only the wheel at fault has pulses removed: one snap, on its count.
+    pulses = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
+                   jnp.where(blame_left, g.removed_left, g.removed_right))
+    pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
     new_right = jnp.where(both, new_right, d_right - spurious_right)

@@ -71,9 +71,7 @@ def test_reacquisition_ends_a_lock_out():
     filter_reacquire_large_deg restarts it too (``lost``), so "never" switches both off.  Seed 108 is a tuning-side seed
     (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg."""
     drive = sc.make_drive("highway", "mismatch_2.5", 108, duration_s=450.0)
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "never": _default_rmse_after_first_minute(drive, {"filter_reacquire_m": 1e12,
-                                                              "filter_reacquire_large_deg": 1e9})}
+    rmse = _default_and(drive, "never", {"filter_reacquire_m": 1e12, "filter_reacquire_large_deg": 1e9})
     assert rmse["never"] > 15.0, rmse
     assert rmse["default"] < 5.0, rmse
 
@@ -87,10 +85,7 @@ def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
     measured with the stop-20 constants: 0.46 deg, before 3.81 deg."""
     drive = sc.make_drive("highway", "hard_iron_shift", 101)
     before = {"filter_reject_harden_m": 1e12, "filter_reacquire_step_m": 1000.0}
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "before": _default_rmse_after_first_minute(drive, before)}
-    assert rmse["before"] > 3.0, rmse
-    assert rmse["default"] < 0.5 * rmse["before"], rmse
+    _assert_default_beats(drive, "before", before, 3.0, 0.5)
 
 
 @pytest.mark.slow
@@ -102,8 +97,7 @@ def test_a_drive_started_in_a_garage_finds_its_heading(scenario, seed, turned):
     measured with the stop-20 constants: highway 2.2 deg (never restarting: 100 deg), mixed 1.3 deg (60 deg)."""
     drive = sc.make_drive(scenario, "garage_start", seed, duration_s=450.0)
     assert round(drive.notes["garage_start"]["turn_deg"]) == turned
-    rmse = {"default": _default_rmse_after_first_minute(drive),
-            "never": _default_rmse_after_first_minute(drive, {"filter_reacquire_large_deg": 1e9})}
+    rmse = _default_and(drive, "never", {"filter_reacquire_large_deg": 1e9})
     assert rmse["never"] > 30.0, rmse
     assert rmse["default"] < 3.0, rmse
 
