@@ -29,6 +29,7 @@ from . import plausibility as _guard
 from . import refine as _refine
 from . import track as _track
 from .angles import safe_div, wrap
+from .packed import computed_once
 from .params import deg
 
 MODES = ("complementary", "odometer", "compass", "kalman")
@@ -317,7 +318,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
         offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                               absolute_ok & ~initializing, drifting, tilt)
-        offset = jax.tree_util.tree_map(lambda a, b: jnp.where(initializing, a, b), _offset.start(params), offset)
+        offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
         steady_params = _offset.steady_params(params)
         steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
         steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,

@@ -83,8 +83,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .angles import safe_div, wrap
-from .packed import packed_state
+from .angles import safe_div, sin_polynomial, wrap
+from .packed import computed_once, packed_state
 from .params import deg
 
 UNINITIALIZED_BOUND = jnp.pi
@@ -287,8 +287,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     reacquire = rejected_m > jnp.where(is_lost, lost_after,
                                        jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
-    new = jnp.where(reacquire, OffsetState.pack(restart).vector, OffsetState.pack(new).vector)
-    out = OffsetState(jnp.where(ok, new, fs.vector))
+    reacquire, ok = computed_once(reacquire), computed_once(ok)
+    out = OffsetState.pack(OffsetFields(*[jnp.where(ok, jnp.where(reacquire, r_, n_), o_)
+                                          for r_, n_, o_ in zip(restart, new, f)]))
     weight = jnp.where(ok, weight, 0.0)
     return out, weight
 
@@ -301,7 +302,7 @@ def tilt_gain(params, heading):
     magnetic east or west, nothing heading north or south.  (It also changes |B| by -g cos(psi_m) B_H;
     used as a second measurement of g that made things worse: anomalies dominate |B|, docs/tuning.md.)
     """
-    return jnp.sin(heading - deg(params.variation_deg))
+    return sin_polynomial(heading - deg(params.variation_deg))
 
 
 
@@ -381,7 +382,7 @@ def follow(params, steady, rate_filter, initializing, d_t):
     """
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
-    taken = OffsetState.pack(f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})).vector
+    taken = f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})
     w_rate = follow_weight(params, rate_filter)
     # After a drift the calibration takes out most of it within kilometres, and what remains (tens of
     # µrad/m, no longer "significant") the rate filter still follows while the steady one lags by degrees:
@@ -389,10 +390,9 @@ def follow(params, steady, rate_filter, initializing, d_t):
     large = jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate
     since = jnp.where((w_rate > 0.5) & large, 0.0, steady.since_drift + d_t)
     hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
-    w = jnp.where(initializing, 1.0, jnp.maximum(w_rate, hold))[..., None]
+    w = jnp.where(computed_once(initializing), 1.0, jnp.maximum(w_rate, hold))
+    # Field by field, then packed: blends of whole packed vectors cost XLA:CPU a transposed copy each.
+    blended = OffsetFields(*[s_ + w * (t_ - s_) for s_, t_ in zip(steady.fields(), taken)])
     # F-DELTA is an angle: blend the wrapped difference.
-    i = OffsetFields._fields.index("delta")
-    diff = (taken - steady.vector).at[..., i].set(wrap(taken[..., i] - steady.vector[..., i]))
-    blended = steady.vector + w * diff
-    blended = blended.at[..., OffsetFields._fields.index("since_drift")].set(since)
-    return OffsetState(blended.at[..., i].set(wrap(blended[..., i])))
+    s_delta = steady.delta
+    return OffsetState.pack(blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since))

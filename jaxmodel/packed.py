@@ -41,3 +41,13 @@ def packed_state(fields_type, name: str, doc: str):
     for i, field in enumerate(fields_type._fields):
         setattr(Packed, field, property(lambda self, i=i: self.vector[..., i]))
     return Packed
+
+
+def computed_once(flag):
+    """``flag`` (bool, per drive), made a value XLA:CPU computes once.
+
+    A flag from a chain of cheap operations (comparisons, selections, reads of the sample), broadcast over
+    a packed state vector, is recomputed by XLA:CPU for every field of it: the filter's ``ok`` alone cost
+    17 of 66 us per step (64 drives).  A square root, exact on 0 and 1, is an operation it does not repeat.
+    """
+    return jnp.sqrt(jnp.where(flag, 1.0, 0.0)) > 0.5
