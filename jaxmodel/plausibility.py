@@ -36,6 +36,10 @@ GUARD_TAU_S = 0.3
 """Time constant (s) of the wheel and dD rates the next increments are predicted from."""
 GUARD_MAX_SUBSTITUTED = 20.0
 """After this many substituted samples in a row the counts are believed again (a real jump)."""
+GUARD_HORIZON_S = 10.0
+"""Rates learned before a gap in time longer than this (s) predict nothing: across it the course check is
+off and no motion is substituted (a logger that stopped for minutes, a clock that jumped; extrapolated
+over 1e300 s, the recent turn rate put the wheel heading 1e282 rad off)."""
 COMMON_MODULI = (256.0, 1000.0, 1024.0, 4096.0, 10000.0, 16384.0, 32768.0, 65536.0, 100000.0)
 """Counter moduli of wheel-pulse counters (8-16 bit, decimal): a jump by one of them is a wrap."""
 _SIGNED_MODULI = tuple(m * sign for m in COMMON_MODULI for sign in (1.0, -1.0))
@@ -92,7 +96,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     right_fast = jnp.abs(d_right) > speed_limit
     dD = d_left - d_right
     tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
-    turn_bad = jnp.abs(dD - pred_dD) > tol
+    turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S)
     trusting = g.substituted < GUARD_MAX_SUBSTITUTED
     raw_ok = counts_ok & ~left_fast & ~right_fast & ~turn_bad
     blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))

@@ -101,3 +101,22 @@ def test_regression_huge_time_jump_and_huge_field_in_every_mode():
             out = _run_all[mode](jm.make_params(), inputs)
             assert np.all(np.isfinite(np.asarray(out.heading))), mode
             assert np.all(np.isfinite(np.asarray(out.x))) and np.all(np.isfinite(np.asarray(out.y))), mode
+
+
+def test_regression_clock_jump_after_a_turn_keeps_the_heading_wrapped_in_every_mode():
+    """Found by hypothesis (stop 21's local database): 26 pulses on one wheel in 1 s, then the clock jumps to
+    1e300 s and stays.  The guard extrapolated the recent turn rate over the gap (1e300 s x 0.26 m/s) and
+    the wheel heading went 4e282 rad, out of (-pi, pi] for the rest of the drive; a gap beyond
+    plausibility.GUARD_HORIZON_S now predicts nothing."""
+    t = np.r_[1.0, 2.0, 3.0, 4.0, np.full(N - 4, 1e300)]
+    right = np.r_[0.0, 0.0, 0.0, np.full(N - 3, 26.0)]
+    z = np.zeros(N)
+    inputs = jm.make_inputs(t, z, right, z, z, map_heading=z, map_valid=z, compass_unreliable_area=z,
+                            fix_east_m=z, fix_north_m=z, fix_valid=z)
+    for mode in jm.MODES:
+        out = _run_all[mode](jm.make_params(), inputs)
+        h = np.asarray(out.heading)
+        assert np.all(np.isfinite(h)) and np.all((h > -math.pi) & (h <= math.pi)), (mode, h)
+        for name in ("wheel_heading", "x", "y"):
+            assert np.all(np.isfinite(np.asarray(getattr(out, name)))), (mode, name)
+        assert np.all(np.abs(np.asarray(out.x)) < 1e3), mode  # no motion invented across the gap
