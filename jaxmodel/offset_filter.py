@@ -332,7 +332,8 @@ def lost(params, disturbance):
 
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves opposite."""
-    return OffsetState(fs.vector.at[..., OffsetFields._fields.index("beta")].add(-change_per_m))
+    f = fs.fields()
+    return OffsetState.pack(f._replace(beta=f.beta - change_per_m))
 
 
 def bound(params, fs, initialized):

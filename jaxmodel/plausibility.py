@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from .packed import packed_state
+from .packed import computed_once, packed_state
 
 GUARD_TAU_S = 0.3
 """Time constant (s) of the wheel and dD rates the next increments are predicted from."""
@@ -54,6 +54,21 @@ class GuardFields(NamedTuple):
     substituted: jnp.ndarray  # substituted samples in a row
     removed_left: jnp.ndarray   # pulses last removed from the left counter (0: none pending)
     removed_right: jnp.ndarray  # pulses last removed from the right counter
+    # The two-sided re-estimate of a rounded removal (``_vernier``), on the sample index k: running means
+    # of D and k D of the cumulative dD over the last ~1/VERNIER_LEVEL_WEIGHT samples, relative to the
+    # current sample (m, m); for a pending removal, the wheel it was taken from (+1 left, -1 right, 0 none),
+    # the pulses removed and those two means before it; from it on, the cumulative dD since the sample
+    # before it (m), the sums of D and k D (m) and the count of samples.
+    m_D: jnp.ndarray
+    m_kD: jnp.ndarray
+    vernier_wheel: jnp.ndarray
+    vernier_removed: jnp.ndarray
+    before_D: jnp.ndarray
+    before_kD: jnp.ndarray
+    after_D: jnp.ndarray
+    sum_D: jnp.ndarray
+    sum_kD: jnp.ndarray
+    after_n: jnp.ndarray
 
 
 GuardState = packed_state(GuardFields, "GuardState", "State of the odometer plausibility guard (one float64 vector).")
@@ -62,19 +77,20 @@ GuardState.__module__ = __name__
 
 def init_guard_state():
     z = jnp.zeros((), jnp.float64)
-    return GuardState.pack(GuardFields(z, z, z, z, z, z))
+    return GuardState.pack(GuardFields(*([z] * len(GuardFields._fields))))
 
 
 def _snap(pulses, removed):
     """The whole number of spurious pulses: a common modulus (either sign) or -removed (a spike
-    returning) when within SNAP_PULSES of ``pulses`` (the nearest), else ``pulses`` rounded."""
+    returning) when within SNAP_PULSES of ``pulses`` (the nearest), else ``pulses`` rounded; and whether
+    it was such an exact candidate (bool)."""
     # One small vector of candidates, reduced with min and max (no argmin: the native FMU's lowering,
     # fmu/jaxpr_lower.py, has none); a chain of scalar selections cost 2x the robust step's time.
     candidates = jnp.concatenate([jnp.asarray(_SIGNED_MODULI), jnp.where(removed != 0.0, -removed, jnp.inf)[None]])
     miss = jnp.abs(pulses - candidates)
     best_miss = jnp.min(miss)
     nearest = jnp.max(jnp.where(miss == best_miss, candidates, -jnp.inf))
-    return jnp.where(best_miss <= SNAP_PULSES, nearest, jnp.round(pulses))
+    return jnp.where(best_miss <= SNAP_PULSES, nearest, jnp.round(pulses)), best_miss <= SNAP_PULSES
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
@@ -100,15 +116,17 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     trusting = g.substituted < GUARD_MAX_SUBSTITUTED
     raw_ok = counts_ok & ~left_fast & ~right_fast & ~turn_bad
     blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
-    both = left_fast & right_fast
-    fix = counts_ok & ~raw_ok & trusting
+    both = computed_once(left_fast & right_fast)
+    # Flags read by every field of the state: computed once (packed.computed_once).
+    fix = computed_once(counts_ok & ~raw_ok & trusting)
     new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
     # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
     # Only the wheel at fault has pulses removed: one snap, on its count.
-    pulses = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
-                   jnp.where(blame_left, g.removed_left, g.removed_right))
+    pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
+                          jnp.where(blame_left, g.removed_left, g.removed_right))
+    raw_dD = d_left - d_right
     pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
@@ -121,19 +139,90 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     drop = believe & (left_fast | right_fast)
     d_left = jnp.where(drop | ~counts_ok, 0.0, d_left)
     d_right = jnp.where(drop | ~counts_ok, 0.0, d_right)
-    kept = counts_ok & ~drop
+    kept = computed_once(counts_ok & ~drop)
+
+    # A rounded removal (not an exact modulus or returning spike) is estimated again, two-sided, once
+    # VERNIER_SAMPLES samples after it have been seen; the pulses it missed are taken off then.
+    single = fix & ~both
+    start = computed_once(single & ~exact)
+    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, raw_dD, time_ok & kept, start, single,
+                                         jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
 
     w = jnp.where(time_ok & kept, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
     inv_dt = jnp.where(time_ok, 1.0 / step_dt, 0.0)
     substituted = jnp.where(fix, g.substituted + 1.0, 0.0)
-    new = GuardState.pack(GuardFields(
-        rate_left=g.rate_left + w * (d_left * inv_dt - g.rate_left),
-        rate_right=g.rate_right + w * (d_right * inv_dt - g.rate_right),
-        rate_dD=g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
-        substituted=substituted,
-        removed_left=_pending(fix & ~both, pulses_left, g.removed_left),
-        removed_right=_pending(fix & ~both, pulses_right, g.removed_right)))
-    return d_left, d_right, raw_ok, counts_ok & ~left_fast & ~right_fast, kept, new
+    base = jnp.stack([g.rate_left + w * (d_left * inv_dt - g.rate_left),
+                      g.rate_right + w * (d_right * inv_dt - g.rate_right),
+                      g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
+                      substituted,
+                      _pending(fix & ~both, pulses_left, g.removed_left),
+                      _pending(fix & ~both, pulses_right, g.removed_right)], axis=-1)
+    new = GuardState(jnp.concatenate([base, v], axis=-1))
+    return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, new
+
+
+VERNIER_SAMPLES = 5.0
+"""Samples after a rounded removal (itself included) before it is estimated again from both sides."""
+VERNIER_LEVEL_WEIGHT = 0.2
+"""Per-sample weight of the running means of the cumulative dD before a removal (~5 samples)."""
+_W = VERNIER_LEVEL_WEIGHT
+_M_K, _M_KK = -(1.0 - _W) / _W, (1.0 - _W) * (2.0 - _W) / _W ** 2
+"""Means of k and k^2 under those weights (k = -1, -2, ... before the current sample, which is k = 0)."""
+_VERNIER = GuardFields._fields.index("vernier_wheel")
+_KEEP_WHEN_DONE = jnp.array([0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+"""Of the pending fields (vernier_wheel ... after_n), those kept when a removal's estimate is done."""
+
+
+def _vernier(g, gs, d_left, d_right, raw_dD, usable, start, single, wheel, removed, dpp_left, dpp_right):
+    """The two-sided re-estimate of a rounded removal (the fields from ``m_D`` on, as one vector).
+
+    One sample's dD predicted from the rate before it (what the guard substitutes) cannot tell its own
+    quantization: on a straight road the per-sample dD alternates between two whole numbers of pulses, and
+    rounding the removal then leaves one spurious pulse, 1.1 deg of wheel heading for good on the matrix's
+    vehicles.  The cumulative dD D(k) can: a straight line with a step B at the removal, fitted by least
+    squares to ~5 samples before (running means) and VERNIER_SAMPLES from it on (on the sample index: the
+    samples are taken as evenly spaced), averages the quantization out; B in whole pulses of the wheel at
+    fault, less what was removed, is taken off that wheel on the sample that completes the window.
+    ``g``, ``gs``: the guard's fields and packed state; ``start``: this sample made a rounded removal of
+    ``removed`` pulses from ``wheel`` (+1 left, -1 right); ``single``: it removed pulses from one wheel (an
+    exact removal cancels a pending estimate); ``usable``: kept and in order in time.
+    Returns (d_left, d_right, the fields from ``m_D`` on (..., 10), whether a correction was applied).
+    """
+    pending = computed_once((g.vernier_wheel != 0.0) & usable & ~single)
+    # From the removal on (k = 1, 2, ...), D relative to the sample before it; the removal counts its raw dD.
+    after_D = g.after_D + d_left - d_right
+    after_n = g.after_n + 1.0
+    grown = gs.vector[..., _VERNIER:] + jnp.stack(
+        [jnp.zeros_like(after_D)] * 4 + [d_left - d_right, after_D, after_n * after_D, jnp.ones_like(after_D)], axis=-1)
+    started = jnp.stack([wheel, removed, g.m_D, g.m_kD, raw_dD, raw_dD, raw_dD, jnp.ones_like(raw_dD)], axis=-1)
+    p = jnp.where(start[..., None], started, jnp.where(pending[..., None], grown, gs.vector[..., _VERNIER:]))
+    wheel_now, removed_now, before_D, before_kD, after_D, sum_D, sum_kD, after_n = (p[..., i] for i in range(8))
+    due = pending & (after_n >= VERNIER_SAMPLES)
+    # Least squares for D = a + b k + B H (H = 1 from the removal on); the samples before weigh as
+    # 1/VERNIER_LEVEL_WEIGHT samples with their running means.
+    nb, na = 1.0 / _W, after_n
+    sum_k, sum_kk = na * (na + 1.0) / 2.0, na * (na + 1.0) * (2.0 * na + 1.0) / 6.0
+    s1, sk, skk = nb + na, nb * _M_K + sum_k, nb * _M_KK + sum_kk
+    sd, skd = nb * before_D + sum_D, nb * before_kD + sum_kD
+    sh, skh, shd = na, sum_k, sum_D
+    det = s1 * (skk * sh - skh * skh) - sk * (sk * sh - skh * sh) + sh * (sk * skh - skk * sh)
+    det_b = s1 * (skk * shd - skd * skh) - sk * (sk * shd - skd * sh) + sd * (sk * skh - skk * sh)
+    jump = det_b / jnp.where(jnp.abs(det) > 0.0, det, 1.0)
+    left = wheel_now > 0.0
+    dpp = jnp.where(left, dpp_left, dpp_right)
+    missed = jnp.round(jnp.where(left, 1.0, -1.0) * jump / dpp) - removed_now
+    fired = due & (jnp.abs(det) > 0.0) & (jnp.abs(missed) == 1.0)
+    d_left = d_left - jnp.where(fired & left, missed * dpp_left, 0.0)
+    d_right = d_right - jnp.where(fired & ~left, missed * dpp_right, 0.0)
+    done = computed_once(due | (single & ~start) | (wheel_now != 0.0) & (after_n > 4.0 * VERNIER_SAMPLES))
+    p = jnp.where(done[..., None], p * _KEEP_WHEN_DONE, p)
+    # The running means move on every kept sample: the old samples' coordinates shift by (-1, -dD), the new
+    # one is (0, 0).
+    w = jnp.where(usable, _W, 0.0)
+    dD = jnp.where(usable, d_left - d_right, 0.0)
+    step = jnp.where(usable, 1.0, 0.0)
+    means = jnp.stack([(1.0 - w) * (g.m_D - dD), (1.0 - w) * (g.m_kD - step * g.m_D - dD * _M_K + step * dD)], axis=-1)
+    return d_left, d_right, jnp.concatenate([means, p], axis=-1), fired
 
 
 def _pending(fixed, pulses, removed):
