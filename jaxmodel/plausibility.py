@@ -17,7 +17,9 @@ predicted dD is removed from it, so AD and the turn of that sample stay what the
 the wheel keeps its own count.  That whole number is exact when it is a counter modulus of
 ``COMMON_MODULI`` (a counter that wraps at another modulus than ``counter_modulus`` says) or
 undoes the pulses last removed from that wheel (a spike that returns), within
-``SNAP_PULSES``; otherwise it can miss by one pulse.  When both wheels fail (or after
+``SNAP_PULSES``; otherwise the rounding can miss by one pulse, and ``_vernier`` estimates the
+removal again from both sides of it (the cumulative dD before and after) and takes off the pulse it
+missed, VERNIER_SAMPLES samples later.  When both wheels fail (or after
 ``GUARD_MAX_SUBSTITUTED`` substitutions in a row) both are replaced by their predictions for
 that sample.  The counter references always follow the counters (resync), so a burst that
 permanently offsets one counter costs nothing after its sample, and a spike costs nothing
