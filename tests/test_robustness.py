@@ -8,10 +8,13 @@ import hypothesis.strategies as st
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
+from jax.test_util import check_grads
 
 import jaxmodel as jm
-from jaxmodel.angles import wrap
+from jaxmodel.angles import sin_polynomial, wrap
+from jaxmodel.packed import computed_once
 
 N = 48
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e300, -1e300, 1e-300])
@@ -120,3 +123,24 @@ def test_regression_clock_jump_after_a_turn_keeps_the_heading_wrapped_in_every_m
         for name in ("wheel_heading", "x", "y"):
             assert np.all(np.isfinite(np.asarray(getattr(out, name)))), (mode, name)
         assert np.all(np.abs(np.asarray(out.x)) < 1e3), mode  # no motion invented across the gap
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-100.0, 100.0, allow_nan=False))
+def test_sin_polynomial_is_sin(angle):
+    """angles.sin_polynomial (the tilt gain's sine, a polynomial so that XLA:CPU does not repeat a libm call in
+    every kernel) equals sin to rounding for angles of a few turns (its argument is a difference of wrapped
+    headings; beyond, the reduction by wrap loses |angle| x 1e-16)."""
+    assert abs(float(sin_polynomial(jnp.float64(angle))) - math.sin(angle)) < 1e-13
+
+
+def test_sin_polynomial_gradient_is_cos():
+    for angle in (-3.0, -1.6, -0.2, 0.0, 0.7, 1.5708, 2.9, 40.0):
+        assert float(jax.grad(sin_polynomial)(angle)) == pytest.approx(math.cos(angle), abs=1e-12)
+    check_grads(sin_polynomial, (jnp.float64(0.4),), order=2, modes=["fwd", "rev"])
+
+
+def test_computed_once_keeps_the_flag():
+    flags = jnp.array([True, False, True])
+    np.testing.assert_array_equal(np.asarray(computed_once(flags)), np.asarray(flags))
+    assert bool(jax.jit(computed_once)(jnp.bool_(True))) and not bool(jax.jit(computed_once)(jnp.bool_(False)))
