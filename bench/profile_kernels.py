@@ -1,0 +1,71 @@
+"""Which XLA:CPU kernels the vmapped scan of one configuration spends its time in (the tool that found
+stop 21's slowdown: a sine repeated in 22 kernels, a flag recomputed for every field of a packed state).
+
+    .venv/bin/python bench/profile_kernels.py [--config default|complementary|seed] [--drives 64] [--top 15]
+
+Runs ``jax.profiler`` over one batch (bench_run.make_batch) and prints, per kernel (thunk) of the scan's
+body, its median duration per step, with the kernel count per step and the sum.  The profiler adds
+~0.3 us to every kernel: compare kernels with each other, and whole configurations with bench_run.py.
+The largest kernels name their HLO op (``jit(...)/while/body/...``); ``compiled.as_text()`` shows their
+fused computations.
+"""
+
+import argparse
+import collections
+import glob
+import gzip
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import jaxmodel as jm  # noqa: E402
+from bench_run import make_batch  # noqa: E402
+
+CONFIGS = {"default": dict(), "complementary": dict(refine_a=False, calibration=False),
+           "seed": dict(robust=False)}
+
+
+def kernel_medians(compiled, batch, steps):
+    """Median duration (us) of each kernel that ran once per step, from one profiled run."""
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder):
+            compiled(batch).block_until_ready()
+        trace = json.load(gzip.open(glob.glob(f"{folder}/**/*.trace.json.gz", recursive=True)[0]))
+    durations = collections.defaultdict(list)
+    for event in trace["traceEvents"]:
+        name = event.get("name", "")
+        if event.get("ph") == "X" and not name.startswith(("$", "end:")) and "Thunk" not in name:
+            durations[name].append(event["dur"])
+    return {name: sorted(d)[len(d) // 2] for name, d in durations.items() if len(d) >= steps}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--config", choices=sorted(CONFIGS), default="default")
+    ap.add_argument("--drives", type=int, default=64)
+    ap.add_argument("--samples", type=int, default=900)
+    ap.add_argument("--top", type=int, default=15)
+    args = ap.parse_args()
+    batch, _, _ = make_batch(args.drives, args.samples)
+    params = jm.make_params()
+    config = jm.Config(**CONFIGS[args.config])
+    compiled = jax.jit(jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading)) \
+        .lower(batch).compile()
+    compiled(batch).block_until_ready()
+    medians = kernel_medians(compiled, batch, args.samples)
+    text = compiled.as_text()
+    print(f"{args.config}: {len(medians)} kernels per step, sum of medians {sum(medians.values()):.1f} us "
+          f"({args.drives} drives, profiled)")
+    for name, us in sorted(medians.items(), key=lambda kv: -kv[1])[:args.top]:
+        line = next((ln for ln in text.splitlines() if ln.lstrip().startswith(f"%{name} = ")), "")
+        op = line.split('op_name="')[1].split('"')[0] if 'op_name="' in line else ""
+        print(f"{us:8.2f} us  {name:40s} {op[-70:]}")
+
+
+if __name__ == "__main__":
+    main()
