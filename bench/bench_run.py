@@ -62,8 +62,13 @@ CONFIGS = {
 }
 
 
+def batch_headings(params, config):
+    """The function the throughput is measured on: headings of a batch of drives, vmap(run)."""
+    return jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading)
+
+
 def measure(params, batch, config, sharding=None):
-    fn = jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading)
+    fn = batch_headings(params, config)
     jitted = jax.jit(fn) if sharding is None else jax.jit(fn, in_shardings=sharding, out_shardings=sharding)
     t0 = time.perf_counter()
     compiled = jitted.lower(batch).compile()

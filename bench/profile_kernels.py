@@ -24,7 +24,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import jaxmodel as jm  # noqa: E402
-from bench_run import make_batch  # noqa: E402
+from bench_run import batch_headings, make_batch  # noqa: E402
 
 CONFIGS = {"default": dict(), "complementary": dict(refine_a=False, calibration=False),
            "seed": dict(robust=False)}
@@ -52,10 +52,7 @@ def main():
     ap.add_argument("--top", type=int, default=15)
     args = ap.parse_args()
     batch, _, _ = make_batch(args.drives, args.samples)
-    params = jm.make_params()
-    config = jm.Config(**CONFIGS[args.config])
-    compiled = jax.jit(jax.vmap(lambda i: jm.run_from(params, jm.init_state(params), i, config)[1].heading)) \
-        .lower(batch).compile()
+    compiled = jax.jit(batch_headings(jm.make_params(), jm.Config(**CONFIGS[args.config]))).lower(batch).compile()
     compiled(batch).block_until_ready()
     medians = kernel_medians(compiled, batch, args.samples)
     text = compiled.as_text()
