@@ -135,9 +135,9 @@ class OffsetFields(NamedTuple):
     wander: jnp.ndarray
 
 
-# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _dot):
-# inside the vmapped scan, XLA:CPU runs each tiny matmul as its own kernel; unrolled, the step fuses
-# (bench/bench_run.py).
+# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _dot): inside the
+# vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
+# (docs/tuning.md, "Throughput, stop 22").
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 OffsetState.__module__ = __name__
 
@@ -207,8 +207,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
     # through a dropout of kilometres turns the heading further off than the wheels alone.
     phi_b = jnp.where(f.since_absolute > 0.0, jnp.exp(-d_t / params.filter_rate_corr_m), 1.0)
     # F is diagonal but for its row 0: the offset moves by the rate times AD and by the scale error
-    # times the wheel turn.  Written on that structure: every operation is a kernel of its own inside
-    # the vmapped scan (the dense 5x5 products made the step 3x slower, bench/bench_run.py).
+    # times the wheel turn.  Written on that structure, with none of the dense products' zeros.
     d = (1.0, phi_b, phi, 1.0, phi_g)
     Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2,
          params.filter_rate_psd * d_t,

@@ -128,7 +128,6 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # Only the wheel at fault has pulses removed: one snap, on its count.
     pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
                           jnp.where(blame_left, g.removed_left, g.removed_right))
-    raw_dD = d_left - d_right
     pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
@@ -147,7 +146,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # VERNIER_SAMPLES samples after it have been seen; the pulses it missed are taken off then.
     single = fix & ~both
     start = computed_once(single & ~exact)
-    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, raw_dD, time_ok & kept, start, single,
+    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, time_ok & kept, start, single,
                                          jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
 
     w = jnp.where(time_ok & kept, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
@@ -157,8 +156,8 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       g.rate_right + w * (d_right * inv_dt - g.rate_right),
                       g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
                       substituted,
-                      _pending(fix & ~both, pulses_left, g.removed_left),
-                      _pending(fix & ~both, pulses_right, g.removed_right)], axis=-1)
+                      _pending(single, pulses_left, g.removed_left),
+                      _pending(single, pulses_right, g.removed_right)], axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, new
 
@@ -196,10 +195,10 @@ def _vernier(g, gs, d_left, d_right, raw_dD, usable, start, single, wheel, remov
     """
     pending = computed_once((g.vernier_wheel != 0.0) & usable & ~single)
     # From the removal on (k = 1, 2, ...), D relative to the sample before it; the removal counts its raw dD.
-    after_D = g.after_D + d_left - d_right
-    after_n = g.after_n + 1.0
+    next_D = g.after_D + d_left - d_right
+    next_n = g.after_n + 1.0
     grown = gs.vector[..., _VERNIER:] + jnp.stack(
-        [jnp.zeros_like(after_D)] * 4 + [d_left - d_right, after_D, after_n * after_D, jnp.ones_like(after_D)], axis=-1)
+        [jnp.zeros_like(next_D)] * 4 + [d_left - d_right, next_D, next_n * next_D, jnp.ones_like(next_D)], axis=-1)
     started = jnp.stack([wheel, removed, g.m_D, g.m_kD, raw_dD, raw_dD, raw_dD, jnp.ones_like(raw_dD)], axis=-1)
     p = jnp.where(start[..., None], started, jnp.where(pending[..., None], grown, gs.vector[..., _VERNIER:]))
     wheel_now, removed_now, before_D, before_kD, after_D, sum_D, sum_kD, after_n = (p[..., i] for i in range(8))
@@ -223,7 +222,8 @@ def _vernier(g, gs, d_left, d_right, raw_dD, usable, start, single, wheel, remov
     fired = due & (jnp.abs(det) > 0.0) & (jnp.abs(missed) == 1.0) & clear
     d_left = d_left - jnp.where(fired & left, missed * dpp_left, 0.0)
     d_right = d_right - jnp.where(fired & ~left, missed * dpp_right, 0.0)
-    done = computed_once(due | (single & ~start) | (wheel_now != 0.0) & (after_n > 4.0 * VERNIER_SAMPLES))
+    # Done when due, or when an exact removal (a modulus, a returning spike) cancels it.
+    done = computed_once(due | (single & ~start))
     p = jnp.where(done[..., None], p * _KEEP_WHEN_DONE, p)
     # The running means move on every kept sample: the old samples' coordinates shift by (-1, -dD), the new
     # one is (0, 0).
