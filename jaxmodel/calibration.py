@@ -255,3 +255,35 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
         prev_curvature=jnp.where(win_done, curvature, cs.prev_curvature),
         prev_k=jnp.where(stretch_done, k_s, cs.prev_k),
     ))
+
+
+CAPTURE_RATE_Z = 6.0
+"""The rate filter's rate is taken into the ratio only beyond this many of its sigmas (a parking lot's anomalies
+gave a "significant" 1.2e-3 rad/m at 2.9 sigmas after 160 m; a 0.5 % mismatch is 3e-3 rad/m on a 1.5 m track)."""
+
+
+def capture_rate(params, cs, rate, track, capture):
+    """Take a drift of the wheel heading, ``rate`` (rad/m) as the rate filter measures it, into the ratio.
+
+    Where the seed is silent: a tyre mismatch turns the wheel heading by about (k_true - k) / T per metre
+    (T the effective track, m), and the rate filter of F-DELTA (jaxmodel/offset_filter.py) measures that
+    rate from the compass within hundreds of metres, on curves too, while the straight stretches of claims
+    2-3 take kilometres to find a mismatch of 1-3 % (their windows must first look steady).  Where
+    ``capture`` (the caller's test: the rate is significant and too large for a compass error), the ratio
+    becomes the k' whose coefficients cancel the rate (``offset_filter.shift_rate`` moves it by
+    -(rel_left - rel_right) / track): k' = (k - c) / (1 + c), c = rate track k / (1 + k) (~ k - rate track),
+    within cal_max_correction of the parameter ratio.  The filtered mean restarts there with the prior's
+    weight, so the stretches refine it from then on.  Returns the new CalibrationState.
+    """
+    f = cs.fields()
+    k = f.ratio
+    c = rate * track * k / (1.0 + k)
+    k0 = params.dpp_right / params.dpp_left
+    lim = params.cal_max_correction * k0
+    new_k = jnp.clip((k - c) / (1.0 + c), k0 - lim, k0 + lim)
+    dpp_left, dpp_right = _coefficients(params, new_k)
+    w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
+    z = jnp.zeros_like(k)
+    captured = f._replace(dpp_left=dpp_left, dpp_right=dpp_right, ratio=new_k, mean=new_k, weight=w0 + z,
+                          weight2=w0 * w0 + z, m2=z, prev_k=z)
+    return CalibrationState(jnp.where(capture, CalibrationState.pack(captured).vector, cs.vector))

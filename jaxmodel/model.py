@@ -175,6 +175,10 @@ def init_state(params) -> State:
     )
 
 
+RECALIBRATION_HOLD = 1e-4
+"""Relative change of the ratio in one calibration update beyond which the steady F-DELTA's follow hold restarts."""
+
+
 def _decode_counter(count, last, modulus):
     """Pulse increment of a counter that wraps at ``modulus``, in [-modulus/2, modulus/2]."""
     d = count - last
@@ -365,11 +369,22 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=d_t,
         compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
         robust=robust)
+    if config.calibration and robust and config.mode == "complementary":
+        # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
+        large = jnp.abs(offset.beta) > params.filter_follow_hold_rate
+        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
+        capture = large & known & (_offset.follow_weight(params, offset) > 0.5) & (initialized > 0.5)
+        cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
     # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
     if config.calibration and robust:
         rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
         rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
         offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
+        # A ratio still moving by more than RECALIBRATION_HOLD says the wheels drift: the steady filter follows the
+        # rate filter (filter_follow_hold_m) while the stretches refine it.
+        moved = jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD
+        steady = steady._replace(vector=steady.vector.at[..., _offset.SINCE_DRIFT].set(
+            jnp.where(moved, 0.0, steady.since_drift)))
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(

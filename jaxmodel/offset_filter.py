@@ -139,6 +139,8 @@ class OffsetFields(NamedTuple):
 # vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
 # (docs/tuning.md, "Throughput, stop 22").
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
+SINCE_DRIFT = OffsetFields._fields.index("since_drift")
+"""Position of ``since_drift`` in the packed vector (the model restarts the follow hold on a recalibration)."""
 OffsetState.__module__ = __name__
 
 

@@ -294,9 +294,10 @@ def test_the_steady_filter_keeps_following_after_a_tyre_mismatch():
     ~1350 µrad/m), the steady F-DELTA keeps following it for filter_follow_hold_m: the calibration takes most of the
     drift out, but the 10-40 µrad/m that remain for minutes are no longer "significant", and the rate-free steady
     filter lagged them by 4-5 deg (mixed/mismatch_0.5/103, a tuning seed).  Measured: 1.32 deg, without the hold
-    3.47 deg."""
+    3.47 deg; since the capture of the drift into the ratio (calibration.capture_rate, stop 23) less remains:
+    1.31 deg, without the hold 2.16 deg."""
     drive = sc.make_drive("mixed", "mismatch_0.5", 103)
-    _assert_default_beats(drive, "no_hold", {"filter_follow_hold_m": 0.0}, 3.0, 0.5)
+    _assert_default_beats(drive, "no_hold", {"filter_follow_hold_m": 0.0}, 2.0, 0.7)
 
 
 @pytest.mark.slow
