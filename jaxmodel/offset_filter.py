@@ -141,6 +141,7 @@ class OffsetFields(NamedTuple):
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 SINCE_DRIFT = OffsetFields._fields.index("since_drift")
 """Position of ``since_drift`` in the packed vector (the model restarts the follow hold on a recalibration)."""
+SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[SINCE_DRIFT].set(1.0)
 OffsetState.__module__ = __name__
 
 
