@@ -266,6 +266,12 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     blend = jnp.where(ok, -jnp.expm1(-d_t / LOST_STEADY_M), 0.0)
     level = f.level + blend * wrap(nu - f.level)
     wander = f.wander + blend * (wrap(nu - level) ** 2 - f.wander)
+    # A jump of the disagreement beyond filter_reacquire_large_deg (a car leaving the garage it started in) is
+    # judged from the jump on, not with the jump in it: the jump alone kept the wander above LOST_STEADY_DEG
+    # for ~40 m.  JUMP_WANDER asks for ~7 m of steady disagreement after it.
+    jump = computed_once(ok & (jnp.abs(wrap(nu - f.level)) > deg(params.filter_reacquire_large_deg)))
+    level = jnp.where(jump, nu, level)
+    wander = jnp.where(jump, JUMP_WANDER * deg(LOST_STEADY_DEG) ** 2, wander)
     steadily = jnp.sqrt(wander) < deg(LOST_STEADY_DEG)
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
@@ -319,6 +325,8 @@ LOST_STEADY_M = 10.0
 """Distance (m) over which the steadiness of a lost filter's disagreement is judged."""
 LOST_STEADY_DEG = 15.0
 """A disagreement that wanders less than this (RMS about its mean, deg) is steady."""
+JUMP_WANDER = 2.0
+"""Wander (in LOST_STEADY_DEG^2) a jump of the disagreement restarts from: ~7 m of steadiness make it steady."""
 
 
 def lost(params, disturbance):
