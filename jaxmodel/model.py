@@ -371,9 +371,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         robust=robust)
     if config.calibration and robust and config.mode == "complementary":
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
-        large = jnp.abs(offset.beta) > params.filter_follow_hold_rate
         known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
-        capture = computed_once(large & known & (_offset.follow_weight(params, offset) > 0.5) & (initialized > 0.5))
+        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
         cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
     # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
     if config.calibration and robust:
@@ -382,8 +381,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
         # A ratio still moving by more than RECALIBRATION_HOLD says the wheels drift: the steady filter follows the
         # rate filter (filter_follow_hold_m) while the stretches refine it.
-        moved = computed_once(jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD)
-        steady = _offset.OffsetState(steady.vector * (1.0 - jnp.where(moved, 1.0, 0.0)[..., None] * _offset.SINCE_DRIFT_ONEHOT))
+        steady = _offset.restart_hold(steady, computed_once(jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD))
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(

@@ -139,9 +139,8 @@ class OffsetFields(NamedTuple):
 # vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
 # (docs/tuning.md, "Throughput, stop 22").
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
-SINCE_DRIFT = OffsetFields._fields.index("since_drift")
-"""Position of ``since_drift`` in the packed vector (the model restarts the follow hold on a recalibration)."""
-SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[SINCE_DRIFT].set(1.0)
+_SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("since_drift")].set(1.0)
+"""1 at ``since_drift`` in the packed vector, 0 elsewhere (``restart_hold``)."""
 OffsetState.__module__ = __name__
 
 
@@ -376,6 +375,19 @@ def follow_weight(params, rate_filter):
     return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
 
 
+def large_drift(params, rate_filter):
+    """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
+    filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
+    grades look like.  It starts the steady filter's follow hold (``follow``) and a capture of the drift into the
+    left/right ratio (``calibration.capture_rate``)."""
+    return (follow_weight(params, rate_filter) > 0.5) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
+
+
+def restart_hold(steady, restart):
+    """The steady filter's follow hold restarted (``since_drift`` 0) where ``restart`` (bool, computed once)."""
+    return OffsetState(steady.vector * (1.0 - jnp.where(restart, 1.0, 0.0)[..., None] * _SINCE_DRIFT_ONEHOT))
+
+
 NEVER_DRIFTED_M = 1e12
 """``since_drift`` of a filter that has not seen the wheels drift."""
 
@@ -398,8 +410,7 @@ def follow(params, steady, rate_filter, initializing, d_t):
     # After a drift the calibration takes out most of it within kilometres, and what remains (tens of
     # µrad/m, no longer "significant") the rate filter still follows while the steady one lags by degrees:
     # it keeps following for filter_follow_hold_m after the rate was last significant.
-    large = jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate
-    since = jnp.where((w_rate > 0.5) & large, 0.0, steady.since_drift + d_t)
+    since = jnp.where(large_drift(params, rate_filter), 0.0, steady.since_drift + d_t)
     hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
     w = jnp.where(computed_once(initializing), 1.0, jnp.maximum(w_rate, hold))
     # Field by field, then packed: blends of whole packed vectors cost XLA:CPU a transposed copy each.

@@ -335,8 +335,9 @@ def test_a_parking_drive_started_in_a_garage_finds_its_heading_sooner():
     """In a car park the car drives 100 m in minutes, and the lost heading (here 130 deg off) stayed for most of the
     drive.  A lost filter whose disagreement is steady (wanders less than LOST_STEADY_DEG over LOST_STEADY_M: a heading
     started wrong, not an anomaly) restarts after filter_reacquire_lost_steady_m = 10 m.  Tuning-side seed 104, 15
-    minutes; measured 7.4 deg (after 100 m: 16.9 deg); since the jump is judged apart (stop 23) 0.78 deg.  An unconditional 10 m put the project simulator's urban/4 3.2
-    deg off (0.61 deg), its anomalies turn the field beyond 60 deg for metres (docs/tuning.md)."""
+    minutes; measured 7.4 deg (after 100 m: 16.9 deg); since the jump is judged apart (stop 23) 0.78 deg.  An
+    unconditional 10 m put the project simulator's urban/4 3.2 deg off (0.61 deg), its anomalies turn the field
+    beyond 60 deg for metres (docs/tuning.md)."""
     drive = sc.make_drive("parking", "garage_start", 104)
     _assert_default_beats(drive, "100 m", {"filter_reacquire_lost_steady_m": 100.0}, 10.0, 0.6)
 
