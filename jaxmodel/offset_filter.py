@@ -71,7 +71,9 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   1 + (R / ``filter_reject_harden_m``)^2 over R metres of rejection, so that its soft-gated
   samples do not creep in (they moved F-DELTA 6 deg in 1.2 km on highway/hard_iron_shift/103).
   A compass that disagrees by more than ``filter_reacquire_large_deg`` (``lost``) restarts it
-  after ``filter_reacquire_lost_m``: the heading itself is wrong (a drive started in a garage);
+  after ``filter_reacquire_lost_m`` of being that far off (``lost_m``: not of rejection, or a long disturbance
+  that turns the field past it step by step restarts the filter on its way out): the heading itself is wrong (a
+  drive started in a garage);
   after ``filter_reacquire_lost_steady_m`` when that disagreement is steady (``wander`` below
   LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.
 """
@@ -105,7 +107,7 @@ class OffsetFields(NamedTuple):
     ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2);
     ``since_drift`` metres since the rate filter's rate was last large and significant (``follow``);
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
-    LOST_STEADY_M (how steadily the compass disagrees)."""
+    LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last accepted."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
@@ -133,6 +135,7 @@ class OffsetFields(NamedTuple):
     since_drift: jnp.ndarray
     level: jnp.ndarray
     wander: jnp.ndarray
+    lost_m: jnp.ndarray
 
 
 # One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _dot): inside the
@@ -184,7 +187,7 @@ def init_offset_state(params):
     return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
                                          # unsteady until LOST_STEADY_M of compass samples said otherwise
-                                         level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0))
+                                         level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z))
 
 
 def start(params):
@@ -229,7 +232,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
-        since_drift=f.since_drift, level=f.level, wander=f.wander))
+        since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
@@ -279,20 +282,27 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     gain = [v * inv for v in ph]
     weight = 1.0 / (1.0 + z2 / gate2)
     rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
+    # Counted from a jump beyond filter_reacquire_large_deg (the level restarts there), else from when the running
+    # disagreement passed it; held (not reset) while the compass stays rejected, where it dips under it.
+    beyond = is_lost | (jnp.abs(level) > deg(params.filter_reacquire_large_deg))
+    lost_m = jnp.where(weight < 0.5, f.lost_m + jnp.where(beyond, d_t, 0.0), 0.0)
     new_x = [v + gi * nu for v, gi in zip(x, gain)]
     new_P = {f"p{i}{j}": P[i][j] - gain[i] * ph[j] for i, j in _UPPER}
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **new_P,
         disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
-        rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander)
+        rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
     restart = start(params).fields()._replace(delta=wrap(delta_meas), level=level, wander=wander)
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, params.filter_reacquire_lost_m)
-    reacquire = rejected_m > jnp.where(is_lost, lost_after,
-                                       jnp.where(drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
+    # A lost filter counts its metres from when it became lost, not from when the compass was first rejected: a long
+    # disturbance that turns the field step by step past filter_reacquire_large_deg is not a wrong heading
+    # (highway/long_disturbance/103 restarted 60 deg off on its way out).
+    reacquire = jnp.where(is_lost, lost_m > lost_after, rejected_m > jnp.where(
+        drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, jnp.where(reacquire, r_, n_), o_)
