@@ -248,6 +248,130 @@ def _with_circle(fun, space, circle):
     return wrapped
 
 
+def _check_arguments(mode, max_iter, derivatives, field_circle) -> None:
+    """One-line errors for arguments ``identify`` cannot use."""
+    if mode not in MODES:
+        raise OdoCompassError(f"identify: unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+    if not (isinstance(max_iter, int) and max_iter >= 1):
+        raise OdoCompassError(f"--max-iter must be a positive integer, got {max_iter!r}")
+    if derivatives not in ("auto", "forward", "reverse"):
+        raise OdoCompassError(f"derivatives must be 'auto', 'forward' or 'reverse', got {derivatives!r}")
+    if field_circle not in ("auto", "on", "off"):
+        raise OdoCompassError(f"field_circle must be 'auto', 'on' or 'off', got {field_circle!r}")
+
+
+@dataclass
+class _Problem:
+    """What every stage of one ``identify`` call shares: the stacked training drives, the start (prior means),
+    the estimator switches and the optimiser's settings."""
+    keys: tuple
+    start: Any
+    inputs: Any
+    ref: Any
+    sample_mask: Any
+    mask: Any
+    reference: str
+    prior_std: Mapping[str, float] | None
+    decorrelation_s: float
+    fix_settings: Any
+    circle: Any
+    switches: dict          # refine_a, calibration, track of jaxmodel.Config
+    derivatives: str
+    max_iter: int
+    gtol: float
+    ftol: float
+    progress: bool
+
+
+def _fit_one_stage(problem: _Problem, stage: Stage, current):
+    """Fit one stage from ``current``; returns (new current Params, {label: parameter row}, labels, correlation
+    block, stage report, warning or None)."""
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    t_stage = time.perf_counter()
+    cfg = jaxmodel.Config(mode=stage.mode, **problem.switches)
+    space = L.make_space(stage.keys, problem.start, problem.prior_std, all_keys=problem.keys)
+    if problem.reference == "fixes":
+        loss_problem, loss_text = _fixes_problem(stage, space, current, problem.inputs, problem.sample_mask, cfg,
+                                                 problem.fix_settings)
+    else:
+        loss_problem, loss_text = _heading_problem(stage, space, current, problem.inputs, problem.ref, problem.mask,
+                                                   cfg, problem.start, problem.decorrelation_s)
+    use_forward = problem.derivatives == "forward" or (problem.derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
+    gn = _with_circle(L.forward_value_grad_gn(loss_problem), space, problem.circle)
+    fun = gn if use_forward else _with_circle(L.reverse_value_grad(loss_problem, checkpoint=True), space,
+                                              problem.circle)
+    bar = _progress(problem.progress, problem.max_iter, f"identify [{stage.name}] {','.join(stage.keys)}")
+
+    def tick(it, value, gmax):
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"loss={value:.6g} |grad|={gmax:.2g}")
+
+    try:
+        res, res_final, ratio, se, corr, signal, status, frozen = _fit_stage(
+            fun, gn, space, use_forward, problem.max_iter, problem.gtol, problem.ftol, tick)
+    finally:
+        if bar is not None:
+            bar.total = bar.n
+            bar.refresh()
+            bar.close()
+    z = np.asarray(res_final.z)
+    current = space.to_params(jnp.asarray(z), current)
+    theta = space.theta(z)
+    theta0 = space.theta(np.zeros_like(z))
+    iters = res.iterations + (res_final.iterations if res_final is not res else 0)
+    evals = res.evaluations + (res_final.evaluations if res_final is not res else 0)
+    rows = {}
+    for j, label in enumerate(space.labels):
+        rows[label] = {
+            "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
+            "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
+            "prior_std_unconstrained": float(space.s[j]),
+            "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
+            "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[j]),
+            "status": status[j], "stage": stage.name,
+        }
+    stage_report = {
+        "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
+        "estimator_mode": stage.mode, "reference": problem.reference, "loss": loss_text,
+        "effective_errors_per_drive": [float(x) for x in loss_problem.n_eff],
+        "derivatives": "forward" if use_forward else "reverse (checkpointed)",
+        "iterations": iters, "evaluations": evals, "converged": bool(res_final.converged),
+        "stop_reason": res_final.reason, "loss_history": [float(v) for v in res.history],
+        "loss_history_refit": [float(v) for v in res_final.history] if res_final is not res else [],
+        "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen)],
+        "wall_time_s": time.perf_counter() - t_stage,
+    }
+    if problem.circle is not None and {"X0", "Y0"} <= set(space.labels):
+        stage_report["loss"] += (" + the field circle's (X0, Y0) as a measurement "
+                                 "(compass_fit.field_circle, report.field_circle)")
+    warning = None if res_final.converged else f"stage '{stage.name}' did not converge: {res_final.reason}"
+    return current, rows, list(space.labels), corr, stage_report, warning
+
+
+def _optional_report_parts(problem: _Problem, fitted) -> dict[str, Any]:
+    """The report's sections that only some fits have: fixes settings, the field circle, the deviation curve."""
+    parts: dict[str, Any] = {}
+    settings, circle = problem.fix_settings, problem.circle
+    if problem.reference == "fixes":
+        parts["fixes"] = {"window_s": settings.window_s, "increment_s": settings.increment_s,
+                          "fix_sigma_m": settings.fix_sigma_m, "heading_floor_deg": settings.heading_floor_deg,
+                          "min_dist_m": settings.min_dist_m, "straight_deg": settings.straight_deg}
+    if circle is not None:
+        parts["field_circle"] = {"X0": float(circle[0][0]), "Y0": float(circle[0][1]),
+                                 "std_error": [float(v) for v in np.sqrt(np.diag(circle[1]))],
+                                 "correlation": float(circle[1][0, 1] / math.sqrt(circle[1][0, 0] * circle[1][1, 1])),
+                                 **circle[2]}
+    if "deviation_deg" in problem.keys:
+        parts["deviation_deg"] = {"before": [float(v) for v in np.asarray(problem.start.deviation_deg)],
+                                  "after": [float(v) for v in np.asarray(fitted.deviation_deg)],
+                                  "harmonics": list(deviation_harmonics(problem.keys))}
+    return parts
+
+
 def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), mode: str = "odometer",
              max_iter: int = 400, progress: bool = True, *, config=None, refine_a: bool = True,
              calibration: bool = False, track: str = "closed_form", prior_std: Mapping[str, float] | None = None,
@@ -262,19 +386,13 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     'heading' (``ref_heading_deg``), 'fixes' (position fixes, ``fixes_loss``) or 'auto'.
     """
     import jax
-    import jax.numpy as jnp
 
     import jaxmodel
 
     t_start = time.perf_counter()
     if not jax.config.jax_enable_x64:
         raise OdoCompassError("odocompass needs 64-bit JAX: call jax.config.update('jax_enable_x64', True)")
-    if mode not in MODES:
-        raise OdoCompassError(f"identify: unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-    if not (isinstance(max_iter, int) and max_iter >= 1):
-        raise OdoCompassError(f"--max-iter must be a positive integer, got {max_iter!r}")
-    if derivatives not in ("auto", "forward", "reverse"):
-        raise OdoCompassError(f"derivatives must be 'auto', 'forward' or 'reverse', got {derivatives!r}")
+    _check_arguments(mode, max_iter, derivatives, field_circle)
     if config is not None:
         refine_a, calibration, track = bool(config.refine_a), bool(config.calibration), str(config.track)
     keys = L.parse_fit(fit)
@@ -286,10 +404,8 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     jaxmodel.validate_params(start)
     requested_reference = reference
     reference = resolve_reference(reference, train, validate)
-    fix_settings = fix_settings or FX.FixSettings()
 
     inputs, ref, sample_mask, mask = stack(train)
-    stages = plan_stages(keys, mode, increment_s, increment_m)
     warnings: list[str] = []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
     eval_config = jaxmodel.Config(mode=eval_mode, refine_a=refine_a, calibration=calibration, track=track)
@@ -299,81 +415,29 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     ev_before = evaluator(start)
 
     circle = None
-    if field_circle not in ("auto", "on", "off"):
-        raise OdoCompassError(f"field_circle must be 'auto', 'on' or 'off', got {field_circle!r}")
     if ("X0" in keys and "Y0" in keys
             and (field_circle == "on" or (field_circle == "auto" and reference == "fixes"))):
         from .compass_fit import field_circle as _field_circle
 
         circle = _field_circle(inputs, sample_mask, start)
+    problem = _Problem(keys=keys, start=start, inputs=inputs, ref=ref, sample_mask=sample_mask, mask=mask,
+                       reference=reference, prior_std=prior_std, decorrelation_s=decorrelation_s,
+                       fix_settings=fix_settings or FX.FixSettings(), circle=circle,
+                       switches=dict(refine_a=refine_a, calibration=calibration, track=track),
+                       derivatives=derivatives, max_iter=max_iter, gtol=gtol, ftol=ftol, progress=progress)
     current = start
     param_rows: dict[str, dict] = {}
     stage_reports = []
     corr_labels: list[str] = []
     corr_blocks = []
-    total_iter = total_eval = 0
-    for stage in stages:
-        t_stage = time.perf_counter()
-        cfg = jaxmodel.Config(mode=stage.mode, refine_a=refine_a, calibration=calibration, track=track)
-        space = L.make_space(stage.keys, start, prior_std, all_keys=keys)
-        if reference == "fixes":
-            problem, loss_text = _fixes_problem(stage, space, current, inputs, sample_mask, cfg, fix_settings)
-        else:
-            problem, loss_text = _heading_problem(stage, space, current, inputs, ref, mask, cfg, start,
-                                                  decorrelation_s)
-        use_forward = derivatives == "forward" or (derivatives == "auto" and space.dim <= FORWARD_MAX_DIM)
-        gn = _with_circle(L.forward_value_grad_gn(problem), space, circle)
-        fun = gn if use_forward else _with_circle(L.reverse_value_grad(problem, checkpoint=True), space, circle)
-        bar = _progress(progress, max_iter, f"identify [{stage.name}] {','.join(stage.keys)}")
-
-        def tick(it, value, gmax, bar=bar):
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix_str(f"loss={value:.6g} |grad|={gmax:.2g}")
-
-        try:
-            res, res_final, ratio, se, corr, signal, status, frozen = _fit_stage(
-                fun, gn, space, use_forward, max_iter, gtol, ftol, tick)
-        finally:
-            if bar is not None:
-                bar.total = bar.n
-                bar.refresh()
-                bar.close()
-        z = np.asarray(res_final.z)
-        current = space.to_params(jnp.asarray(z), current)
-        theta = space.theta(z)
-        theta0 = space.theta(np.zeros_like(z))
-        iters = res.iterations + (res_final.iterations if res_final is not res else 0)
-        evals = res.evaluations + (res_final.evaluations if res_final is not res else 0)
-        total_iter += iters
-        total_eval += evals
-        for j, label in enumerate(space.labels):
-            param_rows[label] = {
-                "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
-                "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
-                "prior_std_unconstrained": float(space.s[j]),
-                "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
-                "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[j]),
-                "status": status[j], "stage": stage.name,
-            }
-        corr_labels.extend(space.labels)
+    for stage in plan_stages(keys, mode, increment_s, increment_m):
+        current, rows, labels, corr, stage_report, warning = _fit_one_stage(problem, stage, current)
+        param_rows.update(rows)
+        corr_labels.extend(labels)
         corr_blocks.append(corr)
-        stage_reports.append({
-            "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
-            "estimator_mode": stage.mode, "reference": reference, "loss": loss_text,
-            "effective_errors_per_drive": [float(x) for x in problem.n_eff],
-            "derivatives": "forward" if use_forward else "reverse (checkpointed)",
-            "iterations": iters, "evaluations": evals, "converged": bool(res_final.converged),
-            "stop_reason": res_final.reason, "loss_history": [float(v) for v in res.history],
-            "loss_history_refit": [float(v) for v in res_final.history] if res_final is not res else [],
-            "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen)],
-            "wall_time_s": time.perf_counter() - t_stage,
-        })
-        if circle is not None and {"X0", "Y0"} <= set(space.labels):
-            stage_reports[-1]["loss"] += (" + the field circle's (X0, Y0) as a measurement "
-                                          "(compass_fit.field_circle, report.field_circle)")
-        if not res_final.converged:
-            warnings.append(f"stage '{stage.name}' did not converge: {res_final.reason}")
+        stage_reports.append(stage_report)
+        if warning:
+            warnings.append(warning)
 
     fitted = current
     ev_after = evaluator(fitted)
@@ -403,24 +467,11 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "effective_track": R.effective_track_table(start, fitted),
         "drives": rows,
         "stages": stage_reports,
-        "iterations": total_iter,
-        "evaluations": total_eval,
+        "iterations": sum(st["iterations"] for st in stage_reports),
+        "evaluations": sum(st["evaluations"] for st in stage_reports),
         "warnings": warnings,
+        **_optional_report_parts(problem, fitted),
     }
-    if reference == "fixes":
-        report["fixes"] = {"window_s": fix_settings.window_s, "increment_s": fix_settings.increment_s,
-                           "fix_sigma_m": fix_settings.fix_sigma_m,
-                           "heading_floor_deg": fix_settings.heading_floor_deg, "min_dist_m": fix_settings.min_dist_m,
-                           "straight_deg": fix_settings.straight_deg}
-    if circle is not None:
-        report["field_circle"] = {"X0": float(circle[0][0]), "Y0": float(circle[0][1]),
-                                  "std_error": [float(v) for v in np.sqrt(np.diag(circle[1]))],
-                                  "correlation": float(circle[1][0, 1] / math.sqrt(circle[1][0, 0] * circle[1][1, 1])),
-                                  **circle[2]}
-    if "deviation_deg" in keys:
-        report["deviation_deg"] = {"before": [float(v) for v in np.asarray(start.deviation_deg)],
-                                   "after": [float(v) for v in np.asarray(fitted.deviation_deg)],
-                                   "harmonics": list(deviation_harmonics(keys))}
     if plots_dir is not None:  # a failed plot is reported, never the end of a finished fit
         from . import plots
 
