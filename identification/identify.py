@@ -394,7 +394,8 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         raise OdoCompassError("odocompass needs 64-bit JAX: call jax.config.update('jax_enable_x64', True)")
     _check_arguments(mode, max_iter, derivatives, field_circle)
     if config is not None:
-        refine_a, calibration, track = bool(config.refine_a), bool(config.calibration), str(config.track)
+        refine_a, calibration, track = config.refine_a, config.calibration, config.track
+    switches = dict(refine_a=bool(refine_a), calibration=bool(calibration), track=str(track))
     keys = L.parse_fit(fit)
     train = [_as_drive(d) for d in train_drives]
     validate = [_as_drive(d) for d in (validate_drives or ())]
@@ -408,7 +409,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     inputs, ref, sample_mask, mask = stack(train)
     warnings: list[str] = []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
-    eval_config = jaxmodel.Config(mode=eval_mode, refine_a=refine_a, calibration=calibration, track=track)
+    eval_config = jaxmodel.Config(mode=eval_mode, **switches)
     all_drives = train + validate
     roles = ["train"] * len(train) + ["validate"] * len(validate)
     evaluator = Evaluator(all_drives, eval_config, fixes=any(FX.has_fixes(d) for d in all_drives))
@@ -423,7 +424,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     problem = _Problem(keys=keys, start=start, inputs=inputs, ref=ref, sample_mask=sample_mask, mask=mask,
                        reference=reference, prior_std=prior_std, decorrelation_s=decorrelation_s,
                        fix_settings=fix_settings or FX.FixSettings(), circle=circle,
-                       switches=dict(refine_a=refine_a, calibration=calibration, track=track),
+                       switches=switches,
                        derivatives=derivatives, max_iter=max_iter, gtol=gtol, ftol=ftol, progress=progress)
     current = start
     param_rows: dict[str, dict] = {}
@@ -454,7 +455,7 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "reference": reference,
         "reference_requested": requested_reference,
         "rmse_heading": "odometer-only heading" if mode == "odometer" else f"{mode} heading",
-        "config": {"refine_a": bool(refine_a), "calibration": bool(calibration), "track": track},
+        "config": dict(switches),
         "optimizer": "optax.scale_by_lbfgs (memory 10) + backtracking Armijo line search, whitened "
                      "unconstrained coordinates, MAP prior N(start, prior_std)",
         "convergence": {"gtol": gtol, "ftol": ftol, "max_iter": max_iter},

@@ -23,10 +23,18 @@ def _err_deg(out, drive):
     return np.degrees(np.angle(np.exp(1j * (np.asarray(out.heading) - drive.truth["heading_rad"]))))
 
 
+def _after_first_minute(err_deg, drive):
+    """The heading errors after the first minute (the part of a drive the matrix scores)."""
+    return err_deg[drive.truth["time_s"] >= 60.0]
+
+
+def _rmse(err_deg):
+    return float(np.sqrt(np.mean(err_deg ** 2)))
+
+
 def _default_rmse_after_first_minute(drive, overrides=None):
     """Heading RMSE (deg) of the default estimator after the first minute, as the matrix scores it."""
-    after_first_minute = drive.truth["time_s"] >= 60.0
-    return float(np.sqrt(np.mean(_err_deg(_run(drive, overrides), drive)[after_first_minute] ** 2)))
+    return _rmse(_after_first_minute(_err_deg(_run(drive, overrides), drive), drive))
 
 
 def _default_and(drive, name, overrides):
@@ -80,10 +88,11 @@ def test_reacquisition_ends_a_lock_out():
     rest of the drive (105 deg RMSE over 15 minutes).  After filter_reacquire_m of rejection the filter restarts from the
     compass, since the rate filter's rate explains the disagreement (``drifting``); a runaway past
     filter_reacquire_large_deg restarts it too (``lost``), so "never" switches both off.  Seed 108 is a tuning-side seed
-    (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg."""
+    (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg; with the tilt
+    sigma of 3 deg (stop 25): 0.83 deg, never 12.3 deg."""
     drive = sc.make_drive("highway", "mismatch_2.5", 108, duration_s=450.0)
     rmse = _default_and(drive, "never", {"filter_reacquire_m": 1e12, "filter_reacquire_large_deg": 1e9})
-    assert rmse["never"] > 15.0, rmse
+    assert rmse["never"] > 8.0, rmse
     assert rmse["default"] < 5.0, rmse
 
 
@@ -182,11 +191,10 @@ def test_glitch_leaves_no_lasting_error(mode):
     clean_err = _err_deg(_run(drive, mode=mode, robust=True), drive)[burst_at:]
     out = _run(glitched, mode=mode, robust=True)
     glitch_err = _err_deg(out, glitched)[burst_at:]
-    rmse = lambda e: float(np.sqrt(np.mean(e ** 2)))  # noqa: E731
     # Issue 10's bar, in every mode: within 0.1 deg of the clean drive from the glitch on (measured 0.0003,
     # 0.0002, 0.0001 deg; a burst that stays would be degrees).
     limit = 0.1
-    assert abs(rmse(glitch_err) - rmse(clean_err)) <= limit, (rmse(glitch_err), rmse(clean_err))
+    assert abs(_rmse(glitch_err) - _rmse(clean_err)) <= limit, (_rmse(glitch_err), _rmse(clean_err))
     # Real motion is kept: the distance of the drive is the same within a few pulses.
     dist_clean = float(_run(drive, mode=mode, robust=True).distance[-1])
     assert float(out.distance[-1]) == pytest.approx(dist_clean, abs=0.2)
@@ -244,14 +252,14 @@ def test_turn_scale_state_holds_a_vehicle_that_was_not_identified():
     """With the nominal P, B, T_F, T_R, a and dpp instead of the vehicle's (13 % off in dpp), every turn
     turns the wheel heading ~10 % wrong.  The offset filter's scale state k (filter_scale_sigma0 0.05; off
     by default) learns that; without it the filter chases the jumps through its rate state (tuning drives:
-    20 deg RMSE; with k 3.7 deg)."""
+    20 deg RMSE; with k 3.7 deg).  ``odocompass estimate`` switches it on with jm.UNIDENTIFIED_VEHICLE, which
+    keeps the tilt sigma at 2 deg: with the default 3 deg (stop 25) this drive was 2.28 deg."""
     drive = sc.make_drive("urban", "baseline", 201, duration_s=450.0)
-    nominal = {k: jm.PARAMETER_SPECS[k].default for k in ("B", "T_F", "T_R", "P", "a", "dpp_left", "dpp_right")}
-    rmse = {"with_k": _default_rmse_after_first_minute(drive, {**nominal, "filter_scale_sigma0": 0.05,
-                                                                "filter_scale_psd": 1e-9}),
+    nominal = {k: jm.PARAMETER_SPECS[k].default for k in jm.VEHICLE_KEYS}
+    rmse = {"with_k": _default_rmse_after_first_minute(drive, {**nominal, **jm.UNIDENTIFIED_VEHICLE}),
             "without_k": _default_rmse_after_first_minute(drive, nominal)}
     assert rmse["with_k"] < 2.0, rmse      # 1.52 deg (1.00 with the vehicle's own parameters)
-    assert rmse["without_k"] > 4.0, rmse   # 6.96 deg
+    assert rmse["without_k"] > 4.0, rmse   # 11.4 deg (6.96 with the tilt sigma of 2 deg)
 
 
 @pytest.mark.slow
@@ -361,7 +369,7 @@ def test_a_garage_is_left_behind_within_metres():
     drive = sc.make_drive("parking", "garage_start", 101)
     err = np.abs(_err_deg(_run(drive), drive))
     t = drive.truth["time_s"]
-    assert float(np.sqrt(np.mean(err[t >= 60.0] ** 2))) < 1.5
+    assert _rmse(_after_first_minute(err, drive)) < 1.5
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(drive.truth["x_m"]), np.diff(drive.truth["y_m"])))])
     left = s[np.searchsorted(t, t[0] + drive.notes["garage_start"]["leave_s"])]
     assert err[s >= left + 15.0].max() < 3.0, err[s >= left + 15.0].max()
@@ -386,7 +394,6 @@ def test_a_long_disturbance_that_turns_the_field_step_by_step_does_not_restart_t
     60 deg off at the stretch's end (5.66 deg RMSE, 61 deg at worst).  Counted from when the disagreement passed
     filter_reacquire_large_deg (offset_filter ``lost_m``): 1.76 deg, and never beyond 6 deg."""
     drive = sc.make_drive("highway", "long_disturbance", 103)
-    err = np.abs(_err_deg(_run(drive), drive))
-    t = drive.truth["time_s"]
-    assert float(np.sqrt(np.mean(err[t >= 60.0] ** 2))) < 2.2
-    assert err[t >= 60.0].max() < 8.0, err[t >= 60.0].max()
+    err = _after_first_minute(np.abs(_err_deg(_run(drive), drive)), drive)
+    assert _rmse(err) < 2.2
+    assert err.max() < 8.0, err.max()
