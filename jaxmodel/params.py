@@ -332,6 +332,7 @@ def _refuse_constant(path: Path):
 
 
 TRUTH_FILE_KEYS = ("params", "scenario", "seed", "truth_csv")
+"""A simulator truth file (``DRIVE.truth.json``) holds the true parameters under ``params``."""
 
 VEHICLE_KEYS = ("P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right")
 """The vehicle's own wheel geometry and scale: where none is given, the nominal vehicle is assumed."""
@@ -353,9 +354,6 @@ def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
         return params, False
     return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()
                               if k not in given}), True
-
-
-"""A simulator truth file (``DRIVE.truth.json``) holds the true parameters under ``params``."""
 
 
 def load_params(path: str | Path) -> tuple[Params, dict[str, Any]]:
