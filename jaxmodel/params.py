@@ -115,7 +115,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_reacquire_large_deg", 60.0, "deg", "a compass that disagrees with F-DELTA by more than this (averaged over filter_check_m) says the heading itself is wrong (a drive started in a garage)"),
     ParamSpec("filter_reacquire_lost_m", 100.0, "m", "such a compass restarts F-DELTA after this many metres driven with it that far off (counted from a jump beyond filter_reacquire_large_deg, or from when the running disagreement passed it; held while the compass stays rejected)"),
     ParamSpec("filter_reacquire_lost_steady_m", 10.0, "m", "and after this many when that disagreement is steady (wanders less than 15 deg RMS over 10 m: a heading started wrong in a garage, not an anomaly)"),
-    ParamSpec("filter_reject_harden_m", 699.1, "m", "a compass rejected R metres in a row has its variance multiplied by 1 + (R / this)^2 unless the rate filter's rate explains the disagreement (a persistent compass error does not creep in)"),
+    ParamSpec("filter_reject_harden_m", 300.0, "m", "a compass rejected R metres in a row has its variance multiplied by 1 + (R / this)^2 unless the rate filter's rate explains the disagreement (a persistent compass error does not creep in)"),
     ParamSpec("filter_reacquire_m", 1000.0, "m", "a compass rejected this many metres in a row restarts F-DELTA from it (re-acquisition after a lock-out)"),
     ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
     ParamSpec("field_memory_m", 5000.0, "m", "distance over which the learned B_E per heading forgets (hard-iron changes)"),
@@ -336,12 +336,16 @@ TRUTH_FILE_KEYS = ("params", "scenario", "seed", "truth_csv")
 
 VEHICLE_KEYS = ("P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right")
 """The vehicle's own wheel geometry and scale: where none is given, the nominal vehicle is assumed."""
-UNIDENTIFIED_VEHICLE = {"filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-9, "filter_tilt_sigma_deg": 2.0}
+UNIDENTIFIED_VEHICLE = {"filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-9, "filter_tilt_sigma_deg": 2.0,
+                        "filter_reject_harden_m": 699.1}
 """The offset filter's turn-scale state for a vehicle whose parameters nobody gave (docs/tuning.md:
 nominal parameters on the matrix 20.2 -> 3.7 deg on the tuning seeds, 16.0 -> 2.2 on the evaluation
 seeds; off by default, since with the vehicle's own parameters it costs 5-11 %).  With it on, the tilt
 state's sigma stays at 2 deg (stop 25, nominal parameters: tuning seeds 101-103 2.41 -> 2.25 deg, held-out
-104-106 1.79 -> 1.71 deg against the default 3 deg), as the scale state explains part of what the tilt did."""
+104-106 1.79 -> 1.71 deg against the default 3 deg), as the scale state explains part of what the tilt did.
+The rejected compass is hardened against over 699 m as before stop 26, not the default 300 m (nominal parameters:
+101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with
+a clean compass for long, and the compass is then the one to keep."""
 _TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd")
 
 

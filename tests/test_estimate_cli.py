@@ -228,6 +228,8 @@ def test_for_unidentified_vehicle_leaves_given_parameters_alone():
     changed, nominal = jaxmodel.for_unidentified_vehicle(base, ("T_C", "D_N"))
     assert nominal and float(changed.filter_scale_sigma0) == jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]
     assert float(changed.filter_tilt_sigma_deg) == jaxmodel.UNIDENTIFIED_VEHICLE["filter_tilt_sigma_deg"]
+    assert float(changed.filter_reject_harden_m) == jaxmodel.UNIDENTIFIED_VEHICLE["filter_reject_harden_m"]
+    assert float(changed.filter_reject_harden_m) != float(base.filter_reject_harden_m)
     # A filter constant the file sets is kept, and does not stop the turn-scale state.
     tilted = jaxmodel.make_params(filter_tilt_sigma_deg=4.0)
     changed, nominal = jaxmodel.for_unidentified_vehicle(tilted, ("filter_tilt_sigma_deg",))
