@@ -1,0 +1,110 @@
+"""Disturbances outside issue 10's matrix: what the default does with faults nobody designed it for.
+
+Each disturbance below is applied to the ``baseline`` drives of the matrix (identification.scenarios, one
+drive per scenario and seed), and every drive is run in the default, odometer-only and compass-only modes
+(calibration on); the table prints each mode's heading RMSE after the first minute (deg), and the default's
+ratio to the better of the other two (the issue-10 bar asks for at most 1.25).  None of these models is used
+to choose a constant: the bench only says where the default stands outside the conditions it was tuned on.
+
+==================  ===================================================================================
+none                the baseline drive as it is (the reference row)
+compass_lag         the compass low-passed with a time constant of 0.7 s (a filtered magnetometer)
+compass_hold        the compass sampled at 2 Hz and held in between (a slower sensor on a 10-Hz log)
+compass_spikes      1 % of the compass samples off by a 15-µT (per axis) Gaussian spike
+fixed_hard_iron     a constant 3-µT offset from the start that the parameters do not know (uncalibrated)
+wheel_slip          the left wheel over-counts by 0.2 % while |acceleration| > 1.5 m/s^2 (a driven wheel)
+==================  ===================================================================================
+
+    .venv/bin/python bench/bench_outside_matrix.py [--seeds 101,104] [--duration 900]
+"""
+
+import argparse
+import copy
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import numpy as np  # noqa: E402
+
+from identification import scenario_eval as ev  # noqa: E402
+from identification import scenarios as sc  # noqa: E402
+
+MODES = ("default", "odometer", "compass")
+
+
+def _compass_lag(drive, tau_s=0.7):
+    t = drive.columns["time_s"]
+    cx, cy = np.array(drive.columns["compass_x"], float), np.array(drive.columns["compass_y"], float)
+    keep = np.exp(-np.diff(t) / tau_s)
+    for i in range(1, t.size):
+        cx[i] = keep[i - 1] * cx[i - 1] + (1.0 - keep[i - 1]) * cx[i]
+        cy[i] = keep[i - 1] * cy[i - 1] + (1.0 - keep[i - 1]) * cy[i]
+    drive.columns["compass_x"], drive.columns["compass_y"] = cx, cy
+
+
+def _compass_hold(drive, every=5):
+    for key in ("compass_x", "compass_y"):
+        c = np.asarray(drive.columns[key])
+        drive.columns[key] = c[(np.arange(c.size) // every) * every]
+
+
+def _compass_spikes(drive, fraction=0.01, sigma_ut=15.0):
+    rng = np.random.default_rng([drive.seed, 5])
+    n = len(drive.columns["compass_x"])
+    hit = rng.random(n) < fraction
+    for key in ("compass_x", "compass_y"):
+        drive.columns[key] = np.asarray(drive.columns[key]) + hit * rng.normal(0.0, sigma_ut, n)
+
+
+def _fixed_hard_iron(drive, offset_ut=3.0):
+    angle = np.random.default_rng([drive.seed, 6]).uniform(0.0, 2.0 * np.pi)
+    drive.columns["compass_x"] = np.asarray(drive.columns["compass_x"]) + offset_ut * np.cos(angle)
+    drive.columns["compass_y"] = np.asarray(drive.columns["compass_y"]) + offset_ut * np.sin(angle)
+
+
+def _wheel_slip(drive, fraction=0.002, accel=1.5):
+    t = np.asarray(drive.truth["time_s"], float)
+    speed = np.asarray(drive.truth["speed_mps"], float)
+    slipping = np.abs(np.gradient(speed, t)) > accel
+    left = np.asarray(drive.columns["left_pulses"], np.int64)
+    steps = (np.diff(left) + 32768) % 65536 - 32768
+    extra = np.round(np.cumsum(np.where(slipping[1:], steps * fraction, 0.0))).astype(np.int64)
+    slipped = left.copy()
+    slipped[1:] = (left[1:] + extra) % 65536
+    drive.columns["left_pulses"] = slipped
+
+
+DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_hold": _compass_hold,
+                "compass_spikes": _compass_spikes, "fixed_hard_iron": _fixed_hard_iron, "wheel_slip": _wheel_slip}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", default="101,104")
+    ap.add_argument("--duration", type=float, default=900.0)
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    t0 = time.perf_counter()
+    base = [sc.make_drive(scenario, "baseline", seed, args.duration) for seed in seeds for scenario in sc.SCENARIOS]
+    print(f"baseline drives of seeds {seeds} ({len(base)} drives, {args.duration:g} s), heading RMSE after the "
+          f"first minute (deg); ratio = default / min(odometer, compass)\n")
+    print(f"| disturbance | drive | {' | '.join(MODES)} | ratio |\n|---|---|{'---|' * len(MODES)}---|")
+    for name, disturb in DISTURBANCES.items():
+        drives = []
+        for drive in base:
+            changed = copy.deepcopy(drive)
+            disturb(changed)
+            drives.append(changed)
+        ratios = []
+        for row in ev.evaluate(drives, modes=MODES):
+            r = row["rmse"]
+            ratios.append(r["default"] / min(r["odometer"], r["compass"]))
+            print(f"| {name} | {row['name'].replace('/baseline', '')} | "
+                  f"{' | '.join(f'{r[m]:.2f}' for m in MODES)} | {ratios[-1]:.2f} |", flush=True)
+        print(f"| {name} | geometric mean ratio | | | | {np.exp(np.mean(np.log(ratios))):.2f} |", flush=True)
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,63 @@
+"""bench/bench_outside_matrix.py: its disturbances change what they say they change, and the bench runs."""
+
+import copy
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import bench_outside_matrix as bench  # noqa: E402
+from identification import scenarios as sc  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return sc.make_drive("urban", "baseline", 101, duration_s=150.0)
+
+
+def _disturbed(drive, name):
+    changed = copy.deepcopy(drive)
+    bench.DISTURBANCES[name](changed)
+    return changed
+
+
+def test_compass_disturbances_leave_the_wheels_alone(drive):
+    for name in ("compass_lag", "compass_hold", "compass_spikes", "fixed_hard_iron"):
+        changed = _disturbed(drive, name)
+        for key in ("left_pulses", "right_pulses", "time_s"):
+            np.testing.assert_array_equal(changed.columns[key], drive.columns[key])
+        assert not np.array_equal(changed.columns["compass_x"], drive.columns["compass_x"]), name
+
+
+def test_compass_hold_repeats_each_sample_five_times(drive):
+    cx = _disturbed(drive, "compass_hold").columns["compass_x"]
+    assert np.all(cx[:5] == cx[0]) and cx[5] == drive.columns["compass_x"][5]
+
+
+def test_fixed_hard_iron_is_one_constant_offset(drive):
+    changed = _disturbed(drive, "fixed_hard_iron")
+    dx = changed.columns["compass_x"] - drive.columns["compass_x"]
+    dy = changed.columns["compass_y"] - drive.columns["compass_y"]
+    np.testing.assert_allclose(np.hypot(dx, dy), 3.0)
+
+
+def test_wheel_slip_adds_left_pulses_only_while_accelerating(drive):
+    changed = _disturbed(drive, "wheel_slip")
+    extra = (np.asarray(changed.columns["left_pulses"]) - np.asarray(drive.columns["left_pulses"])) % 65536
+    np.testing.assert_array_equal(changed.columns["right_pulses"], drive.columns["right_pulses"])
+    t, v = np.asarray(drive.truth["time_s"]), np.asarray(drive.truth["speed_mps"])
+    accelerating = np.abs(np.gradient(v, t)) > 1.5
+    grew = np.flatnonzero(np.diff(extra) > 0) + 1
+    assert grew.size > 0 and np.all(accelerating[grew])
+    assert np.all(np.diff(extra) >= 0)
+
+
+@pytest.mark.slow
+def test_the_bench_runs(capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["bench_outside_matrix.py", "--seeds", "101", "--duration", "120"])
+    bench.main()
+    out = capsys.readouterr().out
+    assert out.count("geometric mean ratio") == len(bench.DISTURBANCES)
+    assert "nan" not in out.lower()
