@@ -67,12 +67,10 @@ def _wheel_slip(drive, fraction=0.002, accel=1.5):
     t = np.asarray(drive.truth["time_s"], float)
     speed = np.asarray(drive.truth["speed_mps"], float)
     slipping = np.abs(np.gradient(speed, t)) > accel
-    left = np.asarray(drive.columns["left_pulses"], np.int64)
-    steps = (np.diff(left) + 32768) % 65536 - 32768
-    extra = np.round(np.cumsum(np.where(slipping[1:], steps * fraction, 0.0))).astype(np.int64)
-    slipped = left.copy()
-    slipped[1:] = (left[1:] + extra) % 65536
-    drive.columns["left_pulses"] = slipped
+    left = sc.unwrap_counter(drive.columns["left_pulses"])
+    extra = np.round(np.cumsum(np.where(slipping[1:], np.diff(left) * fraction, 0.0))).astype(np.int64)
+    left[1:] += extra
+    drive.columns["left_pulses"] = left % 65536
 
 
 DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_hold": _compass_hold,
@@ -99,7 +97,7 @@ def main():
         ratios = []
         for row in ev.evaluate(drives, modes=MODES):
             r = row["rmse"]
-            ratios.append(r["default"] / min(r["odometer"], r["compass"]))
+            ratios.append(row["ratio"])
             print(f"| {name} | {row['name'].replace('/baseline', '')} | "
                   f"{' | '.join(f'{r[m]:.2f}' for m in MODES)} | {ratios[-1]:.2f} |", flush=True)
         print(f"| {name} | geometric mean ratio | | | | {np.exp(np.mean(np.log(ratios))):.2f} |", flush=True)

@@ -135,6 +135,14 @@ def _stretches(rng, s, earth, count, length):
     return out
 
 
+def unwrap_counter(counter, modulus=65536):
+    """A pulse counter that wraps at ``modulus`` as one that does not (int64): each step is taken as the
+    shortest way round, so steps of up to half the modulus either way are kept."""
+    c = np.asarray(counter, np.int64)
+    half = modulus // 2
+    return np.concatenate([[c[0]], c[0] + np.cumsum((np.diff(c) + half) % modulus - half)])
+
+
 def _glitch(rng, left, right, t, speed):
     """Bursts and spikes on the counters (int64 arrays, changed in place).
 
@@ -242,14 +250,12 @@ def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900
     left = np.asarray(columns["left_pulses"], np.int64).copy()
     right = np.asarray(columns["right_pulses"], np.int64).copy()
     if condition == "glitches":
-        unwrapped = [np.concatenate([[c[0]], c[0] + np.cumsum((np.diff(c) + 32768) % 65536 - 32768)])
-                     for c in (left, right)]
+        unwrapped = [unwrap_counter(c) for c in (left, right)]
         notes["pulses_without_glitches"] = (left, right)
         glitch_time = _glitch(rng, unwrapped[0], unwrapped[1], t, np.asarray(truth["speed_mps"]))
         left, right = unwrapped[0] % 65536, unwrapped[1] % 65536
     elif condition == "wrong_modulus":
-        left, right = (np.concatenate([[c[0]], c[0] + np.cumsum((np.diff(c) + 32768) % 65536 - 32768)])
-                       % WRONG_MODULUS for c in (left, right))
+        left, right = (unwrap_counter(c) % WRONG_MODULUS for c in (left, right))
     columns["left_pulses"], columns["right_pulses"] = left, right
     truth_params = dict(truth["params"])
     return ScenarioDrive(scenario, condition, int(seed), columns, truth, truth_params, glitch_time, notes)
