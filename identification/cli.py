@@ -56,10 +56,14 @@ def _version() -> str:
         return "0+unknown"
 
 
-def _enable_x64():
+def _configure_jax():
+    """float64, and compiled programs kept between runs (identification/compile_cache.py)."""
     import jax
 
+    from . import compile_cache
+
     jax.config.update("jax_enable_x64", True)
+    compile_cache.configure()
 
 
 def _nonneg_int(text: str) -> int:
@@ -274,7 +278,7 @@ def main(argv=None) -> int:
     console.set_quiet(args.quiet)
     debug = bool(args.debug)
     try:
-        _enable_x64()
+        _configure_jax()
         return _run(args)
     except KeyboardInterrupt:
         print("odocompass: interrupted", file=sys.stderr)

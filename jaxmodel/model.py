@@ -246,6 +246,142 @@ def _odometer(params, state, sample, track_table, robust=False):
                 guard=guard_state)
 
 
+def _compass_stage(params, state, sample, config, d_t, alpha):
+    """FIG. 8A: compass heading, field magnitude and validity (offsets learned online with
+    Config.hard_iron, whose first accepted fit restarts the heading and B_E).  Returns (state,
+    hard_iron state, H_C raw (rad), |B| (µT), compass_ok)."""
+    if not config.hard_iron:
+        h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
+        return state, state.hard_iron, h_c_raw, b_m, compass_ok
+    hard_iron, restart = _hard_iron.update(params, state.hard_iron, sample.compass_x, sample.compass_y, d_t,
+                                           alpha, sample.compass_unreliable_area < 0.5)
+    x0, y0 = _hard_iron.offsets(hard_iron)
+    h_c_raw, b_m, compass_ok = _compass.compass_heading(params._replace(X0=x0, Y0=y0), sample.compass_x,
+                                                        sample.compass_y)
+    state = state._replace(initialized=jnp.where(restart, 0.0, state.initialized),
+                           field_sum=jnp.where(restart, 0.0, state.field_sum),
+                           field_count=jnp.where(restart, 0.0, state.field_count))
+    return state, hard_iron, h_c_raw, b_m, compass_ok
+
+
+def _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok, wheel_heading,
+                    initialized, initializing):
+    """FIG. 8E-8H as issue 10 runs them: SDD and F (8E, before the map selector 8F, so SD_N judges
+    the compass), the map selector, and F-DELTA by the rate and steady offset filters of
+    jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  Returns a dict
+    of the new state's fields and the complementary heading EH = H_W + F-DELTA (rad)."""
+    d_t, alpha = odo["d_t"], odo["alpha"]
+    # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
+    # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
+    compass_delta = wrap(h_c - wheel_heading)
+    compass_on = compass_ok & (initialized > 0.5)
+    distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
+    update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
+    history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
+                        state.delta_history)
+    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
+    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
+    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
+
+    # FIG. 8F: map-heading selector, then DELTA.
+    absolute, delta, map_used = _hf.select_absolute_heading(
+        params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
+        sample.compass_unreliable_area)
+    absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
+
+    # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
+    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
+    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
+    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
+                      jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
+    drifting = _offset.drifting(params, offset)
+    tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
+    offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
+                                          absolute_ok & ~initializing, drifting, tilt)
+    offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
+    steady_params = _offset.steady_params(params)
+    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
+    steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
+                               tilt)
+    steady = _offset.follow(params, steady, offset, initializing, d_t)
+    f_delta = steady.delta
+
+    field_sum, field_count = _compass.learn_field(
+        params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
+        compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+    return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,
+                factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
+                offset=offset, steady=steady, f_delta=f_delta, complementary=wrap(wheel_heading + f_delta),
+                field_sum=field_sum, field_count=field_count)
+
+
+def _seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,
+                  initializing):
+    """FIG. 8F, 8E and 8G-8H as first tuned on the project's simulator (Config.robust=False): the map
+    selector, SDD and F, and the seed's first-order F-DELTA; B_E the running mean of |B| (bin 0).
+    ``field`` is (field_sum, field_count) of ``_seed_expected_field``.  Returns the same dict as
+    ``_robust_f_delta``."""
+    d_t = odo["d_t"]
+    field_sum, field_count = field
+    # FIG. 8F (map selector) and DELTA (FIG. 8 block 5).
+    absolute, delta, map_used = _hf.select_absolute_heading(
+        params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
+        sample.compass_unreliable_area)
+    absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
+
+    # FIG. 8 block 6 / 8E / 8E-A: every F_update_distance_m, SDD and F.
+    distance_since_F = state.distance_since_F + jnp.where(absolute_ok, d_t, 0.0)
+    update_F = absolute_ok & (distance_since_F >= params.F_update_distance_m)
+    history = jnp.where(update_F, jnp.concatenate([delta[None], state.delta_history[:2]]), state.delta_history)
+    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
+    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
+    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
+
+    # FIG. 8G / 8H: F-DELTA and EH.
+    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
+    gain = _hf.filter_gain(params, d_t, factor, distance_filtered)
+    f_delta = jnp.where(initializing, 0.0,
+                        jnp.where(absolute_ok, _hf.update_f_delta(state.f_delta, delta, gain), state.f_delta))
+    return dict(compass_delta=wrap(h_c - wheel_heading), distance_since_F=distance_since_F, history=history, sdd=sdd,
+                factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
+                offset=state.offset, steady=state.steady, f_delta=f_delta,
+                complementary=wrap(wheel_heading + f_delta), field_sum=field_sum, field_count=field_count)
+
+
+def _seed_expected_field(params, state, b_m, compass_ok):
+    """B_E of the seed filter (µT): the parameter when given (> 0), else the running mean of |B| (kept in
+    bin 0).  Returns (B_E, (field_sum, field_count))."""
+    field_sum = state.field_sum.at[0].add(jnp.where(compass_ok, b_m, 0.0))
+    field_count = state.field_count.at[0].add(jnp.where(compass_ok, 1.0, 0.0))
+    learned = safe_div(field_sum[0], field_count[0], fallback=1.0)
+    return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned), (field_sum, field_count)
+
+
+def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, initialized):
+    """EP 0619873: the left/right dpp calibration; in the robust complementary mode a large, significant
+    drift of the rate filter is captured into the ratio at once.  A new calibration shifts the offset's
+    rate and may restart the steady filter's follow hold.  Returns (calibration state, offset, steady)."""
+    robust = config.robust
+    cal_state = _cal.calibration_step(
+        params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
+        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
+        robust=robust)
+    if config.calibration and robust and config.mode == "complementary":
+        # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
+        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
+        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
+        cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
+    # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
+    if config.calibration and robust:
+        rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
+        rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
+        offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
+        # A ratio still moving by more than RECALIBRATION_HOLD says the wheels drift: the steady filter follows the
+        # rate filter (filter_follow_hold_m) while the stretches refine it.
+        steady = _offset.restart_hold(steady, computed_once(jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD))
+    return cal_state, offset, steady
+
+
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
     """Process one sample; returns (new state, Outputs).  See the module docstring for the order.
 
@@ -263,25 +399,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     d_t, alpha = odo["d_t"], odo["alpha"]
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
-    hard_iron = state.hard_iron
-    if config.hard_iron:  # offsets learned up to this sample; the first accepted fit restarts the heading and B_E
-        hard_iron, restart = _hard_iron.update(params, state.hard_iron, sample.compass_x, sample.compass_y, d_t,
-                                               alpha, sample.compass_unreliable_area < 0.5)
-        x0, y0 = _hard_iron.offsets(hard_iron)
-        h_c_raw, b_m, compass_ok = _compass.compass_heading(params._replace(X0=x0, Y0=y0), sample.compass_x,
-                                                            sample.compass_y)
-        state = state._replace(initialized=jnp.where(restart, 0.0, state.initialized),
-                               field_sum=jnp.where(restart, 0.0, state.field_sum),
-                               field_count=jnp.where(restart, 0.0, state.field_count))
-    else:
-        h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
+    state, hard_iron, h_c_raw, b_m, compass_ok = _compass_stage(params, state, sample, config, d_t, alpha)
     if robust:
         b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
-    else:  # B_E: the parameter when given (> 0), else the running mean of |B| (kept in bin 0)
-        field_sum = state.field_sum.at[0].add(jnp.where(compass_ok, b_m, 0.0))
-        field_count = state.field_count.at[0].add(jnp.where(compass_ok, 1.0, 0.0))
-        learned = safe_div(field_sum[0], field_count[0], fallback=1.0)
-        b_e = jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned)
+    else:
+        b_e, seed_field = _seed_expected_field(params, state, b_m, compass_ok)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
@@ -293,111 +415,32 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     # FIG. 8D: wheel error bound.
     e_w = _hf.wheel_error_bound(params, state.e_w, alpha, d_t)
 
+    # FIG. 8E-8H: SDD, F, the map selector and F-DELTA.
     if robust:
-        # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
-        # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
-        compass_delta = wrap(h_c - wheel_heading)
-        compass_on = compass_ok & (initialized > 0.5)
-        distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
-        update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
-        history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
-                            state.delta_history)
-        sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-        factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-        distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
-
-        # FIG. 8F: map-heading selector, then DELTA.
-        absolute, delta, map_used = _hf.select_absolute_heading(
-            params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
-            sample.compass_unreliable_area)
-        absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
-
-        # FIG. 8G / 8H: F-DELTA by the robust offset filters (jaxmodel/offset_filter.py), EH = H_W + F-DELTA:
-        # the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
-        distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-        offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
-        sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
-                          jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
-        drifting = _offset.drifting(params, offset)
-        tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
-        offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                              absolute_ok & ~initializing, drifting, tilt)
-        offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
-        steady_params = _offset.steady_params(params)
-        steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
-        steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                                   tilt)
-        steady = _offset.follow(params, steady, offset, initializing, d_t)
-        f_delta = steady.delta
-        complementary = wrap(wheel_heading + f_delta)
-
-        field_sum, field_count = _compass.learn_field(
-            params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
-            compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+        fd = _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok, wheel_heading,
+                             initialized, initializing)
     else:
-        # FIG. 8F (map selector) and DELTA (FIG. 8 block 5).
-        absolute, delta, map_used = _hf.select_absolute_heading(
-            params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
-            sample.compass_unreliable_area)
-        absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
-
-        # FIG. 8 block 6 / 8E / 8E-A: every F_update_distance_m, SDD and F.
-        distance_since_F = state.distance_since_F + jnp.where(absolute_ok, d_t, 0.0)
-        update_F = absolute_ok & (distance_since_F >= params.F_update_distance_m)
-        history = jnp.where(update_F, jnp.concatenate([delta[None], state.delta_history[:2]]), state.delta_history)
-        sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-        factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-        distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
-
-        # FIG. 8G / 8H: F-DELTA and EH (the previous default, tuned on the project's simulator).
-        distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-        gain = _hf.filter_gain(params, d_t, factor, distance_filtered)
-        f_delta = jnp.where(initializing, 0.0,
-                            jnp.where(absolute_ok, _hf.update_f_delta(state.f_delta, delta, gain), state.f_delta))
-        complementary = wrap(wheel_heading + f_delta)
-        compass_delta = wrap(h_c - wheel_heading)
-        offset = state.offset
-        steady = state.steady
+        fd = _seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok, wheel_heading,
+                           initialized, initializing)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
-        params, state.refine, state.a, alpha=alpha, delta=compass_delta, d_t=d_t, speed=odo["speed"],
+        params, state.refine, state.a, alpha=alpha, delta=fd["compass_delta"], d_t=d_t, speed=odo["speed"],
         curvature=odo["curvature"], e_c=e_c, compass_ok=compass_ok & (initialized > 0.5), enabled=config.refine_a)
 
     # EP 0619873: left/right distance-per-pulse calibration.
-    cal_state = _cal.calibration_step(
-        params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=d_t,
-        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
-        robust=robust)
-    if config.calibration and robust and config.mode == "complementary":
-        # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
-        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
-        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
-        cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
-    # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
-    if config.calibration and robust:
-        rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
-        rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
-        offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
-        # A ratio still moving by more than RECALIBRATION_HOLD says the wheels drift: the steady filter follows the
-        # rate filter (filter_follow_hold_m) while the stretches refine it.
-        steady = _offset.restart_hold(steady, computed_once(jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD))
+    cal_state, offset, steady = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"], fd["steady"],
+                                           initialized)
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(
         params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
-        initialized=initialized, map_heading=absolute, map_used=map_used, enabled=config.mode == "kalman")
+        initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman")
 
-    if config.mode == "complementary":
-        heading = complementary
-    elif config.mode == "odometer":
-        heading = wheel_heading
-    elif config.mode == "compass":
-        heading = h_c
-    else:
-        heading = kalman_heading
+    heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
+               "kalman": kalman_heading}[config.mode]
 
     # Dead-reckoned position with the mid-sample heading (x east, y north; heading from north).
     if config.mode == "kalman":
@@ -408,7 +451,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _offset.bound(params, steady, initialized) if robust else _hf.heading_bound(sdd, e_w, e_c)
+    bound = _offset.bound(params, steady, initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
     reliability = _hf.reliability(params, bound)
     if robust:
         reliability = jnp.where(initialized > 0.5, reliability, 0.0)
@@ -419,17 +462,18 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                             sample.time_s, state.last_time),
         last_left=odo["left"], last_right=odo["right"], speed=odo["speed"],
         window_dD=odo["window_dD"], window_AD=odo["window_AD"], wheel_heading=wheel_heading, compass_heading=h_c,
-        f_delta=f_delta, heading=heading, e_w=e_w, e_c=e_c, sdd=sdd, factor=factor, delta_history=history,
-        distance_since_F=distance_since_F, distance_filtered=distance_filtered, field_sum=field_sum,
-        field_count=field_count, a=a, x=x, y=y, distance=state.distance + d_t, refine=refine_state,
-        calibration=cal_state, kalman=kalman_state, guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron,
+        f_delta=fd["f_delta"], heading=heading, e_w=e_w, e_c=e_c, sdd=fd["sdd"], factor=fd["factor"],
+        delta_history=fd["history"], distance_since_F=fd["distance_since_F"],
+        distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
+        x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
+        guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
         heading_reliability=reliability, heading_bound=bound,
         compass_valid=jnp.where(compass_ok, 1.0, 0.0), odometer_valid=jnp.where(odo["plausible"], 1.0, 0.0),
-        curvature=odo["curvature"], effective_track=odo["track"], factor=factor, f_delta=f_delta, e_c=e_c, e_w=e_w,
-        map_used=jnp.where(map_used, 1.0, 0.0),
+        curvature=odo["curvature"], effective_track=odo["track"], factor=fd["factor"], f_delta=fd["f_delta"], e_c=e_c,
+        e_w=e_w, map_used=jnp.where(fd["map_used"], 1.0, 0.0),
         dpp_ratio=cal_state.dpp_right / cal_state.dpp_left, distance=new_state.distance, initialized=initialized,
     )
     return new_state, out

@@ -163,10 +163,10 @@ def _sim(scenario, duration_s, seed, fixes_sigma=None, fixes_model="gnss"):
     return jm.Inputs(*(jnp.asarray(np.asarray(v, np.float64)) for v in d.inputs)), truth
 
 
-def _sims(scenario, duration_s, seeds, fixes_sigma=None):
+def _sims(scenario, duration_s, seeds, fixes_sigma=None, fixes_model="gnss"):
     """``_sim`` of several seeds cut to their shortest length (a few samples): one compilation of ``jm.run`` per
     configuration serves them all (each length compiles anew, ~7 s per drive and configuration)."""
-    drives = [_sim(scenario, duration_s, seed, fixes_sigma) for seed in seeds]
+    drives = [_sim(scenario, duration_s, seed, fixes_sigma, fixes_model) for seed in seeds]
     n = min(int(inputs.time_s.shape[0]) for inputs, _ in drives)
     cut = lambda v: v[:n] if np.ndim(v) and len(v) >= n else v  # noqa: E731
     return [(jm.Inputs(*(v[:n] for v in inputs)), {k: cut(v) for k, v in truth.items()}) for inputs, truth in drives]
@@ -323,8 +323,7 @@ def test_bar_on_every_drive_with_white_fixes():
     docs/calibration-kalman.md)."""
     p = jm.make_params()
     receiver = jm.make_params(kf_fix_sigma_m=4.0, kf_fix_gm_sigma_m=0.0)
-    for seed in range(1, 6):
-        inputs, truth = _sim("urban", 900.0, seed, 4.0, fixes_model="white")
+    for seed, (inputs, truth) in zip(range(1, 6), _sims("urban", 900.0, range(1, 6), 4.0, fixes_model="white")):
         h_kal, pos_kal = _rmse(jm.run(receiver, inputs, KALMAN), truth)
         h_comp, pos_comp = _rmse(jm.run(p, inputs, jm.Config()), truth)
         _, pos_odo = _rmse(jm.run(p, inputs, jm.Config(mode="odometer")), truth)
