@@ -36,16 +36,16 @@ def cache_dir(environ=None) -> Path | None:
     if environ.get("JAX_COMPILATION_CACHE_DIR"):
         return None
     chosen = environ.get(ENV_DIR)
-    if chosen is not None:
-        if chosen.strip().lower() in OFF_VALUES:
-            return None
-        path = Path(chosen).expanduser()
-    else:
-        base = environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-        path = Path(base).expanduser() / "odocompass" / "jax"
+    if chosen is not None and chosen.strip().lower() in OFF_VALUES:
+        return None
     try:
+        if chosen is not None:
+            path = Path(chosen).expanduser()
+        else:
+            base = environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+            path = Path(base).expanduser() / "odocompass" / "jax"
         path.mkdir(parents=True, exist_ok=True)
-    except OSError:
+    except (OSError, RuntimeError):  # RuntimeError: no home folder to be found ("~" with HOME unset, no passwd entry)
         return None
     if not (path.is_dir() and os.access(path, os.W_OK | os.X_OK)):
         return None

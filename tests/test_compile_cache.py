@@ -26,6 +26,16 @@ def test_default_is_under_the_user_cache_folder(tmp_path):
     assert compile_cache.cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "odocompass" / "jax"
 
 
+def test_no_home_folder_leaves_the_cache_off(monkeypatch):
+    def no_home(*args):
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(compile_cache.Path, "home", classmethod(no_home))
+    monkeypatch.setattr(compile_cache.Path, "expanduser", no_home)
+    assert compile_cache.cache_dir({}) is None
+    assert compile_cache.cache_dir({"ODOCOMPASS_CACHE_DIR": "~/x"}) is None
+
+
 def test_a_folder_that_cannot_be_made_leaves_the_cache_off(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
