@@ -10,11 +10,13 @@ from pathlib import Path
 # ~25 % faster end to end (tests/test_scenarios.py + test_model.py: 354 -> 265 s); it changes the generated code's
 # speed, not the float64 operations XLA asked for.  Inherited by the subprocesses; bench/ keeps the default.
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
+from identification import compile_cache  # noqa: E402 (imports no jax)
+
 # One persistent compilation cache for the session, fresh each run: the modules (which clear the in-memory caches)
 # and the CLI and FMU subprocesses compile many of the same programs; XLA:CPU then loads them instead.
 _COMPILATION_CACHE = tempfile.TemporaryDirectory(prefix="odocompass-test-jax-cache-")
 os.environ["JAX_COMPILATION_CACHE_DIR"] = _COMPILATION_CACHE.name
-os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = str(compile_cache.MIN_COMPILE_S)
 
 import jax  # noqa: E402
 import pytest

@@ -3,12 +3,10 @@
 import json
 import os
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from test_estimate_cli import drive_columns
+from test_estimate_cli import _odocompass, drive_columns
 
 from identification import compile_cache
 from identification.drive_log import read_table, write_drive
@@ -50,9 +48,7 @@ def test_a_folder_that_cannot_be_made_leaves_the_cache_off(tmp_path):
 def _estimate(drive, out, cache_value, cwd):
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env.update(ODOCOMPASS_CACHE_DIR=cache_value, PYTHONWARNINGS="ignore")
-    exe = Path(sys.executable).parent / "odocompass"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "identification.cli"]
-    return subprocess.run(cmd + ["estimate", "-q", str(drive), "--params", str(cwd / "p.json"), "--out", str(out)],
+    return subprocess.run(_odocompass() + ["estimate", "-q", str(drive), "--params", str(cwd / "p.json"), "--out", str(out)],
                           cwd=cwd, capture_output=True, text=True, env=env, timeout=300)
 
 
