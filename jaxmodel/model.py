@@ -296,13 +296,14 @@ def _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c
                       jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
     drifting = _offset.drifting(params, offset)
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
+    d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                          absolute_ok & ~initializing, drifting, tilt)
+                                          absolute_ok & ~initializing, drifting, tilt, d_lost)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                               tilt)
+                               tilt, d_lost)
     steady = _offset.follow(params, steady, offset, initializing, d_t)
     f_delta = steady.delta
 

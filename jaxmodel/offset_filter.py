@@ -235,7 +235,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
         since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + tilt g + white noise (h = [1, 0, 1, 0, tilt]); ``tilt`` = sin(psi_m) from
@@ -243,9 +243,11 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
     so the compass is neither hardened against nor kept out beyond filter_reacquire_m.  A filter
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
+    ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
+    d_lost = d_t if d_lost is None else d_lost
     h = [1, 0, 1, 0, tilt]
     x = [f.delta, f.beta, f.c, f.k, f.g]
     nu = wrap(delta_meas - _dot(h, x))
@@ -265,7 +267,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     is_lost = lost(params, disturbance)
     # How steadily the compass disagrees, over LOST_STEADY_M: a heading started wrong (a garage) is
     # contradicted by a constant, an anomaly that turns the field as far wanders within metres.
-    blend = jnp.where(ok, -jnp.expm1(-d_t / LOST_STEADY_M), 0.0)
+    blend = jnp.where(ok, -jnp.expm1(-d_lost / LOST_STEADY_M), 0.0)
     level = f.level + blend * wrap(nu - f.level)
     wander = f.wander + blend * (wrap(nu - level) ** 2 - f.wander)
     # A jump of the disagreement beyond filter_reacquire_large_deg (a car leaving the garage it started in) is
@@ -285,7 +287,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt):
     # Counted from a jump beyond filter_reacquire_large_deg (the level restarts there), else from when the running
     # disagreement passed it; held (not reset) while the compass stays rejected, where it dips under it.
     beyond = is_lost | (jnp.abs(level) > deg(params.filter_reacquire_large_deg))
-    lost_m = jnp.where(weight < 0.5, f.lost_m + jnp.where(beyond, d_t, 0.0), 0.0)
+    lost_m = jnp.where(weight < 0.5, f.lost_m + jnp.where(beyond, d_lost, 0.0), 0.0)
     new_x = [v + gi * nu for v, gi in zip(x, gain)]
     new_P = {f"p{i}{j}": P[i][j] - gain[i] * ph[j] for i, j in _UPPER}
     new = OffsetFields(
@@ -332,10 +334,22 @@ def drifting(params, rate_filter):
 
 LOST_STEADY_M = 10.0
 """Distance (m) over which the steadiness of a lost filter's disagreement is judged."""
+LOST_MIN_SPEED = 2.0
+"""While moving, a lost filter counts at least this many metres per second (m/s) towards its restart (``lost_distance``)."""
 LOST_STEADY_DEG = 15.0
 """A disagreement that wanders less than this (RMS about its mean, deg) is steady."""
 JUMP_WANDER = 2.0
 """Wander (in LOST_STEADY_DEG^2) a jump of the disagreement restarts from: ~7 m of steadiness make it steady."""
+
+
+def lost_distance(d_t, dt):
+    """Metres counted towards a lost filter's restart for one sample of |AD| = d_t (m) over dt (s): d_t, but at
+    least LOST_MIN_SPEED x dt while the vehicle moves, and nothing while it stands.  A car leaving at walking pace
+    the garage it started in covers filter_reacquire_lost_steady_m in 30-40 s with its heading 70-140 deg off
+    (parking/garage_start/103, 108, 203: 15-20 deg RMSE); an anomaly is still left behind in metres, not seconds,
+    at any speed above LOST_MIN_SPEED."""
+    # A gap in the log (dt of minutes) counts as at most 10 s: the distance driven then counts in full.
+    return jnp.where(d_t > 0.0, jnp.maximum(d_t, LOST_MIN_SPEED * jnp.minimum(dt, 10.0)), 0.0)
 
 
 def lost(params, disturbance):

@@ -76,3 +76,13 @@ def test_tilt_gain_is_sin_of_the_magnetic_heading():
     p = jm.make_params({"variation_deg": 10.0})
     for true_deg, expected in [(10.0, 0.0), (100.0, 1.0), (190.0, 0.0), (280.0, -1.0)]:
         assert float(of.tilt_gain(p, jnp.asarray(np.radians(true_deg)))) == pytest.approx(expected, abs=1e-12)
+
+
+def test_lost_distance_counts_walking_pace_as_lost_min_speed():
+    """A lost filter's restart counts |AD|, but at least LOST_MIN_SPEED x dt while moving (dt capped at 10 s: a gap
+    in the log), and nothing while standing."""
+    assert float(of.lost_distance(0.3, 0.1)) == pytest.approx(0.3)  # 3 m/s > 2 m/s: |AD| alone
+    assert float(of.lost_distance(0.05, 0.1)) == pytest.approx(0.2)  # 0.5 m/s counts as 2 m/s
+    assert float(of.lost_distance(0.0, 0.1)) == 0.0  # standing
+    assert float(of.lost_distance(1e-3, 1e6)) == pytest.approx(of.LOST_MIN_SPEED * 10.0)  # a gap of days: 10 s
+    assert float(of.lost_distance(50.0, 1e6)) == 50.0
