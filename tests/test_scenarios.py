@@ -394,8 +394,8 @@ def test_a_garage_left_at_walking_pace_is_left_behind_within_seconds(seed):
     (offset_filter.lost_distance): at 0.6-0.8 m/s out of the garage, 10 m took 12-15 s with the heading 140 deg (103)
     and 60 deg (108) off, 5.0 s now (RMSE after the first minute 20.5 -> 15.8 and 19.2 -> 15.4 deg: the simulator's
     garage vanishes while these two cars stand, which no filter can see).  Measured from the first moving sample after
-    the garage, the heading is within 3 deg from 6 s to a minute after (before: from 12.0 and 14.9 s).  The matrix's 15-minute drives: a
-    shorter one is another route."""
+    the garage, the heading is within 3 deg from 6 s to a minute after (before: from 12.0 and 14.9 s).  The matrix's
+    15-minute drives: a shorter one is another route."""
     drive = sc.make_drive("parking", "garage_start", seed)
     err = np.abs(_err_deg(_run(drive), drive))
     t = drive.truth["time_s"] - drive.truth["time_s"][0]
