@@ -13,6 +13,7 @@ compass_hold        the compass sampled at 2 Hz and held in between (a slower se
 compass_spikes      1 % of the compass samples off by a 15-µT (per axis) Gaussian spike
 fixed_hard_iron     a constant 3-µT offset from the start that the parameters do not know (uncalibrated)
 wheel_slip          the left wheel over-counts by 0.2 % while |acceleration| > 1.5 m/s^2 (a driven wheel)
+log_5hz, _2hz, _1hz every sensor logged at 5, 2 or 1 Hz instead of 10 Hz (every 2nd, 5th or 10th sample kept)
 ==================  ===================================================================================
 
     .venv/bin/python bench/bench_outside_matrix.py [--seeds 101,104] [--duration 900]
@@ -73,8 +74,19 @@ def _wheel_slip(drive, fraction=0.002, accel=1.5):
     drive.columns["left_pulses"] = left % 65536
 
 
+def _decimate(drive, every):
+    """Every ``every``-th sample of the log and of its truth (a logger at 10 / every Hz)."""
+    n = len(drive.columns["time_s"])
+    for table in (drive.columns, drive.truth):
+        for key, value in table.items():
+            if isinstance(value, np.ndarray) and value.shape[:1] == (n,):
+                table[key] = value[::every]
+
+
 DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_hold": _compass_hold,
-                "compass_spikes": _compass_spikes, "fixed_hard_iron": _fixed_hard_iron, "wheel_slip": _wheel_slip}
+                "compass_spikes": _compass_spikes, "fixed_hard_iron": _fixed_hard_iron, "wheel_slip": _wheel_slip,
+                "log_5hz": lambda drive: _decimate(drive, 2), "log_2hz": lambda drive: _decimate(drive, 5),
+                "log_1hz": lambda drive: _decimate(drive, 10)}
 
 
 def main():
