@@ -57,7 +57,17 @@ def test_wheel_slip_adds_left_pulses_only_while_accelerating(drive):
 @pytest.mark.slow
 def test_the_bench_runs(capsys, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["bench_outside_matrix.py", "--seeds", "101", "--duration", "120"])
+    # One slower log of the three: each compiles the run for a new length (~15 s).
+    monkeypatch.setattr(bench, "DISTURBANCES", {k: v for k, v in bench.DISTURBANCES.items() if k not in ("log_5hz", "log_1hz")})
     bench.main()
     out = capsys.readouterr().out
     assert out.count("geometric mean ratio") == len(bench.DISTURBANCES)
     assert "nan" not in out.lower()
+
+
+def test_a_slower_log_keeps_every_nth_sample_of_log_and_truth(drive):
+    changed = _disturbed(drive, "log_2hz")
+    for table, before in ((changed.columns, drive.columns), (changed.truth, drive.truth)):
+        for key in ("time_s",) + (("left_pulses", "compass_x") if table is changed.columns else ("heading_rad",)):
+            np.testing.assert_array_equal(table[key], np.asarray(before[key])[::5])
+    assert np.median(np.diff(changed.columns["time_s"])) == pytest.approx(0.5, abs=0.01)
