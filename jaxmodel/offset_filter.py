@@ -75,7 +75,8 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   that turns the field past it step by step restarts the filter on its way out): the heading itself is wrong (a
   drive started in a garage);
   after ``filter_reacquire_lost_steady_m`` when that disagreement is steady (``wander`` below
-  LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.
+  LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.  A lost
+  filter counts its metres at no less than LOST_MIN_SPEED while the car moves (``lost_distance``).
 """
 
 from __future__ import annotations
@@ -345,7 +346,7 @@ JUMP_WANDER = 2.0
 def lost_distance(d_t, dt):
     """Metres counted towards a lost filter's restart for one sample of |AD| = d_t (m) over dt (s): d_t, but at
     least LOST_MIN_SPEED x dt while the vehicle moves, and nothing while it stands.  A car leaving at walking pace
-    the garage it started in covers filter_reacquire_lost_steady_m in 30-40 s with its heading 70-140 deg off
+    the garage it started in covers filter_reacquire_lost_steady_m in 10-15 s with its heading 60-140 deg off
     (parking/garage_start/103, 108, 203: 15-20 deg RMSE); an anomaly is still left behind in metres, not seconds,
     at any speed above LOST_MIN_SPEED."""
     # A gap in the log (dt of minutes) counts as at most 10 s: the distance driven then counts in full.

@@ -114,7 +114,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_reacquire_step_m", 5000.0, "m", "otherwise a compass rejected this many metres in a row restarts F-DELTA (a step in the wheel heading)"),
     ParamSpec("filter_reacquire_large_deg", 60.0, "deg", "a compass that disagrees with F-DELTA by more than this (averaged over filter_check_m) says the heading itself is wrong (a drive started in a garage)"),
     ParamSpec("filter_reacquire_lost_m", 100.0, "m", "such a compass restarts F-DELTA after this many metres driven with it that far off (counted from a jump beyond filter_reacquire_large_deg, or from when the running disagreement passed it; held while the compass stays rejected)"),
-    ParamSpec("filter_reacquire_lost_steady_m", 10.0, "m", "and after this many when that disagreement is steady (wanders less than 15 deg RMS over 10 m: a heading started wrong in a garage, not an anomaly)"),
+    ParamSpec("filter_reacquire_lost_steady_m", 10.0, "m", "and after this many when that disagreement is steady (wanders less than 15 deg RMS over 10 m: a heading started wrong in a garage, not an anomaly); while moving, these metres count at no less than 2 m/s"),
     ParamSpec("filter_reject_harden_m", 300.0, "m", "a compass rejected R metres in a row has its variance multiplied by 1 + (R / this)^2 unless the rate filter's rate explains the disagreement (a persistent compass error does not creep in)"),
     ParamSpec("filter_reacquire_m", 1000.0, "m", "a compass rejected this many metres in a row restarts F-DELTA from it (re-acquisition after a lock-out)"),
     ParamSpec("field_learn_gate", 0.08, "1", "B_E per heading learns only from |B| within this (relative) of the current B_E"),
