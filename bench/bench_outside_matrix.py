@@ -13,6 +13,7 @@ compass_hold        the compass sampled at 2 Hz and held in between (a slower se
 compass_spikes      1 % of the compass samples off by a 15-µT (per axis) Gaussian spike
 fixed_hard_iron     a constant 3-µT offset from the start that the parameters do not know (uncalibrated)
 wheel_slip          the left wheel over-counts by 0.2 % while |acceleration| > 1.5 m/s^2 (a driven wheel)
+spurious_pulses     single extra pulses on either wheel at random, 2 per minute (electrical noise)
 log_5hz, _2hz, _1hz every sensor logged at 5, 2 or 1 Hz instead of 10 Hz (every 2nd, 5th or 10th sample kept)
 ==================  ===================================================================================
 
@@ -74,6 +75,16 @@ def _wheel_slip(drive, fraction=0.002, accel=1.5):
     drive.columns["left_pulses"] = left % 65536
 
 
+def _spurious_pulses(drive, per_minute=2.0):
+    rng = np.random.default_rng([drive.seed, 7])
+    t = np.asarray(drive.columns["time_s"], float)
+    hits = rng.random(t.size) < per_minute / 60.0 * np.gradient(t)
+    left_wheel = rng.random(t.size) < 0.5
+    for key, wheel in (("left_pulses", left_wheel), ("right_pulses", ~left_wheel)):
+        counter = sc.unwrap_counter(drive.columns[key]) + np.cumsum(hits & wheel)
+        drive.columns[key] = counter % 65536
+
+
 def _decimate(drive, every):
     """Every ``every``-th sample of the log and of its truth (a logger at 10 / every Hz)."""
     n = len(drive.columns["time_s"])
@@ -85,6 +96,7 @@ def _decimate(drive, every):
 
 DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_hold": _compass_hold,
                 "compass_spikes": _compass_spikes, "fixed_hard_iron": _fixed_hard_iron, "wheel_slip": _wheel_slip,
+                "spurious_pulses": _spurious_pulses,
                 "log_5hz": lambda drive: _decimate(drive, 2), "log_2hz": lambda drive: _decimate(drive, 5),
                 "log_1hz": lambda drive: _decimate(drive, 10)}
 

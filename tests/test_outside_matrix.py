@@ -71,3 +71,12 @@ def test_a_slower_log_keeps_every_nth_sample_of_log_and_truth(drive):
         for key in ("time_s",) + (("left_pulses", "compass_x") if table is changed.columns else ("heading_rad",)):
             np.testing.assert_array_equal(table[key], np.asarray(before[key])[::5])
     assert np.median(np.diff(changed.columns["time_s"])) == pytest.approx(0.5, abs=0.01)
+
+
+def test_spurious_pulses_add_single_pulses_at_the_asked_rate(drive):
+    changed = _disturbed(drive, "spurious_pulses")
+    extra = [(np.asarray(changed.columns[k]) - np.asarray(drive.columns[k])) % 65536 for k in ("left_pulses", "right_pulses")]
+    steps = np.diff(extra[0]) + np.diff(extra[1])
+    assert set(np.unique(steps)) <= {0, 1}  # one pulse at a time, never taken away
+    minutes = (drive.columns["time_s"][-1] - drive.columns["time_s"][0]) / 60.0
+    assert 0 < steps.sum() <= 4.0 * 2.0 * minutes + 3  # 2 per minute (Poisson)
