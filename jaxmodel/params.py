@@ -88,7 +88,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("glitch_pulses", 4.0, "1", "plausibility (jaxmodel/plausibility.py): dD may depart from its recent rate by this many pulses"),
     ParamSpec("glitch_dD_rate", 0.5, "m/s", "plausibility: plus this change of the dD rate over the sample interval (yaw acceleration)"),
     # --- robust F-DELTA filter (jaxmodel/offset_filter.py; FIG. 8G's filter, fitted in docs/tuning.md) ---
-    ParamSpec("filter_offset_psd", 4.127e-09, "rad2/m", "random walk of the wheel heading offset per metre driven"),
+    ParamSpec("filter_offset_psd", 4.127e-08, "rad2/m", "random walk of the wheel heading offset per metre driven (10x the fitted 4.127e-09: held-out seeds and single spurious pulses, docs/tuning.md stop 28)"),
     ParamSpec("filter_rate_psd", 1.206e-15, "rad2/m3", "random walk of the offset's rate per metre (tyre wear, load)"),
     ParamSpec("filter_rate_corr_m", 300.0, "m", "without an absolute heading the offset's rate fades over this distance (not extrapolated through long compass dropouts)"),
     ParamSpec("filter_rate_sigma0", 0.002992, "rad/m", "initial sigma of the offset's rate (left/right tyre mismatch / track)"),
