@@ -186,7 +186,8 @@ def _decode_counter(count, last, modulus):
 
 
 def _odometer(params, state, sample, track_table, robust=False):
-    """Distances, speed, windowed curvature and the wheel heading change of one sample (FIG. 8B)."""
+    """Distances, speed, windowed curvature and the wheel heading change of one sample (FIG. 8B); with the
+    guard (``robust``), also the wheels' time-smoothed turn rate (rad/s)."""
     started = state.started > 0.5
     dt_raw = sample.time_s - state.last_time
     time_ok = jnp.isfinite(sample.time_s) & (dt_raw > 0.0) & started
@@ -243,7 +244,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
                 d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
                 track=track, alpha=alpha, plausible=plausible, kept=kept,
-                guard=guard_state)
+                guard=guard_state, turn_rate=guard_state.rate_dD / track)
 
 
 def _compass_stage(params, state, sample, config, d_t, alpha):
@@ -292,8 +293,7 @@ def _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
-    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg),
-                      jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2))
+    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
     d_lost = _offset.lost_distance(d_t, odo["dt"])

@@ -364,6 +364,19 @@ def lost(params, disturbance):
     return jnp.abs(disturbance) > deg(params.filter_reacquire_large_deg)
 
 
+def compass_sigma(params, e_c, turn_rate):
+    """The compass's white noise sigma (rad) for one sample: ``filter_compass_sigma_deg``, ``filter_ec_weight``
+    E_C (FIG. 8C) and ``filter_compass_lag_s`` times the wheels' turn rate (rad/s), added in quadrature.
+
+    Where the seed is silent: a magnetometer that filters its readings lags in turns by its time constant times
+    the turn rate (0.7 s and 20 deg/s: 14 deg), and in a turn the car rolls, so the turns' compass samples
+    are the least trustworthy; the wheels carry the heading through a turn.  0.5 s was chosen on the tuning
+    seeds of the matrix (no lag there: 0.3-0.7 s equal, geometric mean 0.979 -> 0.965 deg; docs/tuning.md, stop 29).
+    """
+    return jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2
+                    + (params.filter_compass_lag_s * turn_rate) ** 2)
+
+
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves opposite."""
     f = fs.fields()

@@ -103,6 +103,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_compass_sigma_deg", 2.918, "deg", "white compass noise sigma in the F-DELTA filter (plus filter_ec_weight x E_C)"),
     ParamSpec("filter_compass_corr_m", 0.1148, "m", "white compass noise counted once per this many metres (no gain while standing)"),
     ParamSpec("filter_ec_weight", 0.07855, "1", "weight of the compass error bound E_C (FIG. 8C) in the filter's compass sigma"),
+    ParamSpec("filter_compass_lag_s", 0.5, "s", "the filter's compass sigma grows by this x the wheels' turn rate (a filtered magnetometer lags in turns; docs/tuning.md stop 29)"),
     ParamSpec("filter_gm_m", 179.4, "m", "correlation distance of the compass's coloured error (anomalies, dip on hills)"),
     ParamSpec("filter_gm_sigma_deg", 1.0, "deg", "stationary sigma of the compass's coloured error"),
     ParamSpec("filter_tilt_sigma_deg", 3.0, "deg", "stationary sigma of the tilt error: the heading error of a level-mounted compass heading magnetic east or west on a grade (tan(dip) x pitch; nothing heading north or south)"),
@@ -249,6 +250,7 @@ NON_NEGATIVE_KEYS = (
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
     "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
+    "filter_compass_lag_s",
     "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate", "filter_reacquire_drift_deg",
     "hard_iron_min_distance_m", "hard_iron_restart_fraction")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""

@@ -86,3 +86,15 @@ def test_lost_distance_counts_walking_pace_as_lost_min_speed():
     assert float(of.lost_distance(0.0, 0.1)) == 0.0  # standing
     assert float(of.lost_distance(1e-3, 1e6)) == pytest.approx(of.LOST_MIN_SPEED * 10.0)  # a gap of days: 10 s
     assert float(of.lost_distance(50.0, 1e6)) == 50.0
+
+
+def test_compass_sigma_grows_with_the_turn_rate_by_filter_compass_lag_s():
+    """sigma^2 = filter_compass_sigma^2 + (filter_ec_weight E_C)^2 + (filter_compass_lag_s x turn rate)^2: at 0.5 s
+    and 20 deg/s a turn adds 10 deg in quadrature; straight on, E_C alone adds to the white noise."""
+    p = jm.make_params({"filter_compass_sigma_deg": 3.0, "filter_ec_weight": 0.1, "filter_compass_lag_s": 0.5})
+    turn = np.radians(20.0)
+    assert float(of.compass_sigma(p, 0.0, turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
+    assert float(of.compass_sigma(p, 0.0, -turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
+    assert float(of.compass_sigma(p, np.radians(20.0), 0.0)) == pytest.approx(np.radians(np.hypot(3.0, 2.0)), rel=1e-12)
+    off = p._replace(filter_compass_lag_s=0.0)
+    assert float(of.compass_sigma(off, 0.0, turn)) == pytest.approx(np.radians(3.0), rel=1e-12)

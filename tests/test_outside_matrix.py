@@ -24,7 +24,7 @@ def _disturbed(drive, name):
 
 
 def test_compass_disturbances_leave_the_wheels_alone(drive):
-    for name in ("compass_lag", "compass_hold", "compass_spikes", "fixed_hard_iron"):
+    for name in ("compass_lag", "compass_delay", "compass_hold", "compass_spikes", "fixed_hard_iron"):
         changed = _disturbed(drive, name)
         for key in ("left_pulses", "right_pulses", "time_s"):
             np.testing.assert_array_equal(changed.columns[key], drive.columns[key])
@@ -34,6 +34,12 @@ def test_compass_disturbances_leave_the_wheels_alone(drive):
 def test_compass_hold_repeats_each_sample_five_times(drive):
     cx = _disturbed(drive, "compass_hold").columns["compass_x"]
     assert np.all(cx[:5] == cx[0]) and cx[5] == drive.columns["compass_x"][5]
+
+
+def test_compass_delay_logs_each_sample_three_samples_late(drive):
+    cx = _disturbed(drive, "compass_delay").columns["compass_x"]
+    np.testing.assert_array_equal(cx[3:], np.asarray(drive.columns["compass_x"])[:-3])
+    assert np.all(cx[:3] == drive.columns["compass_x"][0])
 
 
 def test_fixed_hard_iron_is_one_constant_offset(drive):
