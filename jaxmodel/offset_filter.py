@@ -18,7 +18,8 @@ We filter exactly that model, per travelled metre:
 
 with process noise ``filter_offset_psd`` per metre plus (``filter_turn_sigma`` alpha)^2 per turn on
 the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
-``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C) counted once per
+``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C, and ``filter_compass_lag_s`` times the turn
+rate: ``compass_sigma``) counted once per
 ``filter_compass_corr_m`` metres, divided by the seed's factor F (FIG. 8E: F > 1 trusts the compass
 more), ``filter_scale_psd`` per radian turned on k.  It is a five-state Kalman filter; with beta,
 k and g held at 0 and a fixed gain it is the seed's first-order filter.
