@@ -1,5 +1,8 @@
 """Issue 10: robustness on conditions the filter was not designed on (identification.scenarios)."""
 
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +14,9 @@ from identification import scenarios as sc
 from identification.drive_log import drive_from_columns
 from jaxmodel import compass as jc
 from jaxmodel.angles import wrap
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import bench_outside_matrix as outside_matrix  # noqa: E402
 
 
 def _run(drive, overrides=None, **config):
@@ -317,23 +323,12 @@ def test_steady_offset_filter_keeps_slow_compass_errors_out_and_follows_drifting
     assert default < 4.0 and never > 20.0, (default, never)
 
 
-def _lagged_compass(drive, tau_s):
-    """The drive's compass low-passed with time constant ``tau_s`` (a magnetometer that filters its readings)."""
-    t = drive.columns["time_s"]
-    cx, cy = np.array(drive.columns["compass_x"], float), np.array(drive.columns["compass_y"], float)
-    keep = np.exp(-np.diff(t) / tau_s)
-    for i in range(1, t.size):
-        cx[i] = keep[i - 1] * cx[i - 1] + (1.0 - keep[i - 1]) * cx[i]
-        cy[i] = keep[i - 1] * cy[i - 1] + (1.0 - keep[i - 1]) * cy[i]
-    drive.columns["compass_x"], drive.columns["compass_y"] = cx, cy
-    return drive
-
-
 @pytest.mark.slow
 def test_a_compass_that_lags_in_turns_is_trusted_less_there():
     """filter_compass_lag_s: a compass low-passed over 0.7 s reads 10-15 deg behind in a parking lot's turns.
     parking/baseline/101 (a tuning seed, 400 s) with that compass: 1.11 deg, without the turn-rate term 2.27 deg."""
-    drive = _lagged_compass(sc.make_drive("parking", "baseline", 101, duration_s=400.0), 0.7)
+    drive = sc.make_drive("parking", "baseline", 101, duration_s=400.0)
+    outside_matrix.DISTURBANCES["compass_lag"](drive)  # the outside bench's 0.7-s low-pass
     _assert_default_beats(drive, "no_lag_term", {"filter_compass_lag_s": 0.0}, 1.8, 0.7)
 
 
