@@ -265,8 +265,8 @@ def _compass_stage(params, state, sample, config, d_t, alpha):
     return state, hard_iron, h_c_raw, b_m, compass_ok
 
 
-def _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok, wheel_heading,
-                    initialized, initializing):
+def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
+                    wheel_heading, initialized, initializing):
     """FIG. 8E-8H as issue 10 runs them: SDD and F (8E, before the map selector 8F, so SD_N judges
     the compass), the map selector, and F-DELTA by the rate and steady offset filters of
     jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  Returns a dict
@@ -304,16 +304,18 @@ def _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
                                tilt, d_lost)
-    steady = _offset.follow(params, steady, offset, initializing, d_t)
-    f_delta = steady.delta
+    # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.
+    steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
+                                   hold_on_drift=not (config.calibration and config.mode == "complementary"))
+    f_delta = shown.delta
 
     field_sum, field_count = _compass.learn_field(
         params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
         compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
     return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,
                 factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
-                offset=offset, steady=steady, f_delta=f_delta, complementary=wrap(wheel_heading + f_delta),
-                field_sum=field_sum, field_count=field_count)
+                offset=offset, steady=steady, shown=shown, f_delta=f_delta,
+                complementary=wrap(wheel_heading + f_delta), field_sum=field_sum, field_count=field_count)
 
 
 def _seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,
@@ -418,8 +420,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # FIG. 8E-8H: SDD, F, the map selector and F-DELTA.
     if robust:
-        fd = _robust_f_delta(params, state, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok, wheel_heading,
-                             initialized, initializing)
+        fd = _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
+                             wheel_heading, initialized, initializing)
     else:
         fd = _seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok, wheel_heading,
                            initialized, initializing)
@@ -452,7 +454,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         x = state.x + odo["AD"] * jnp.sin(mid)
         y = state.y + odo["AD"] * jnp.cos(mid)
 
-    bound = _offset.bound(params, steady, initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
+    bound = _offset.bound(params, fd["shown"], initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
     reliability = _hf.reliability(params, bound)
     if robust:
         reliability = jnp.where(initialized > 0.5, reliability, 0.0)

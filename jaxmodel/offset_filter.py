@@ -431,29 +431,43 @@ NEVER_DRIFTED_M = 1e12
 """``since_drift`` of a filter that has not seen the wheels drift."""
 
 
-def follow(params, steady, rate_filter, initializing, d_t):
-    """The steady F-DELTA drawn to the rate filter's state (rate taken out) while that rate is significant.
+def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
+    """The steady F-DELTA and the heading it shows: drawn to the rate filter while the wheels drift.
 
     The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
     before the calibration has caught it), but on clean drives the rate it learns from a compass with
     errors correlated over kilometres (dip on hills, anomalies) is noise that it integrates.  The
-    steady filter has no rate; it gives the heading, and takes the rate filter's offset whenever the
-    wheels are seen to drift, and for filter_follow_hold_m after a drift larger than
-    filter_follow_hold_rate (docs/tuning.md).  ``since_drift`` of the steady filter counts the metres
-    since; d_t (m) is this sample's distance.
+    steady filter has no rate; it gives the heading, and:
+
+    * *shows* the rate filter's offset (and variance) while that filter's rate is significant
+      (``follow_weight``), without taking it into its own state: a compass swing on a hill taken for a
+      rate leaves the steady filter where it was once the rate is insignificant again;
+    * *takes* the rate filter's state (rate taken out) for filter_follow_hold_m after the drift was
+      confirmed: by the calibration, which restarts the hold when it moves the ratio (a capture of the
+      drift or a recalibration: ``restart_hold``), or, with ``hold_on_drift`` (the calibration off), by a
+      significant rate larger than filter_follow_hold_rate (``large_drift``).  After a drift the
+      calibration takes out most of it within kilometres, and what remains (tens of µrad/m, no longer
+      "significant") the rate filter still follows while the steady one would lag by degrees.
+
+    Before stop 30 a significant rate was copied into the steady state too: hills drives of seeds 101-109
+    (36) 1.41 deg against 1.28 deg now (docs/tuning.md, stop 30).  ``since_drift`` of the steady filter counts the
+    metres since the hold last restarted; d_t (m) is this sample's distance.  Returns (steady state,
+    shown state: the steady one with delta, p00 and disturbance blended towards the rate filter's).
     """
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
     taken = f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})
     w_rate = follow_weight(params, rate_filter)
-    # After a drift the calibration takes out most of it within kilometres, and what remains (tens of
-    # µrad/m, no longer "significant") the rate filter still follows while the steady one lags by degrees:
-    # it keeps following for filter_follow_hold_m after the rate was last significant.
-    since = jnp.where(large_drift(params, rate_filter), 0.0, steady.since_drift + d_t)
+    restart = large_drift(params, rate_filter) if hold_on_drift else False
+    since = jnp.where(restart, 0.0, steady.since_drift + d_t)
     hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
-    w = jnp.where(computed_once(initializing), 1.0, jnp.maximum(w_rate, hold))
+    w = jnp.where(computed_once(initializing), 1.0, hold)
     # Field by field, then packed: blends of whole packed vectors cost XLA:CPU a transposed copy each.
     blended = OffsetFields(*[s_ + w * (t_ - s_) for s_, t_ in zip(steady.fields(), taken)])
     # F-DELTA is an angle: blend the wrapped difference.
     s_delta = steady.delta
-    return OffsetState.pack(blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since))
+    blended = blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since)
+    shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
+                             p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
+                             disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))
+    return OffsetState.pack(blended), OffsetState.pack(shown)
