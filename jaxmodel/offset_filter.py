@@ -440,8 +440,9 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
     steady filter has no rate; it gives the heading, and:
 
     * *shows* the rate filter's offset (and variance) while that filter's rate is significant
-      (``follow_weight``), without taking it into its own state: a compass swing on a hill taken for a
-      rate leaves the steady filter where it was once the rate is insignificant again;
+      (``follow_weight``) and larger than about filter_follow_show_rate, without taking it into its own
+      state: a compass swing on a hill taken for a rate leaves the steady filter where it was once the
+      rate is insignificant again;
     * *takes* the rate filter's state (rate taken out) for filter_follow_hold_m after the drift was
       confirmed: by the calibration, which restarts the hold when it moves the ratio (a capture of the
       drift or a recalibration: ``restart_hold``), or, with ``hold_on_drift`` (the calibration off), by a
@@ -467,6 +468,9 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
     # F-DELTA is an angle: blend the wrapped difference.
     s_delta = steady.delta
     blended = blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since)
+    # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
+    w_rate = w_rate * jax.nn.sigmoid(FOLLOW_STEEPNESS * (jnp.abs(f.beta) - params.filter_follow_show_rate)
+                                     / (params.filter_follow_show_rate + 1e-6))
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))

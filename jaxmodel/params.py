@@ -97,6 +97,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_steady_turn_sigma", 0.0349, "1", "relative sigma of a wheel turn as offset noise in the steady F-DELTA (no rate state), which gives the heading while the rate filter's rate is insignificant"),
     ParamSpec("filter_rate_significance", 2.891, "1", "the steady F-DELTA follows the rate filter while its rate exceeds this many of its sigmas (the wheels drift: a tyre mismatch not yet calibrated)"),
     ParamSpec("filter_follow_hold_m", 20000.0, "m", "the steady F-DELTA keeps following the rate filter for this many metres after its rate was last significant (the drift that the calibration has not yet taken out; 0: off)"),
+    ParamSpec("filter_follow_show_rate", 5e-4, "rad/m", "the heading shows the rate filter's offset only while its significant rate is larger than about this (smooth step; slow compass errors on hills fake 50-150 µrad/m for kilometres, a 0.1 % tyre mismatch turns the wheels ~700; 0: any significant rate)"),
     ParamSpec("filter_follow_hold_rate", 1e-3, "rad/m", "only a significant rate larger than this starts filter_follow_hold_m (a tyre mismatch of 0.1 % turns the wheels ~700 µrad/m; dip errors on grades look like 100)"),
     ParamSpec("filter_scale_sigma0", 0.0, "1", "initial sigma of the wheel turn's relative scale error; 0 (default) switches the scale state off, 0.05-0.15 for a vehicle whose track, dpp or a were not identified"),
     ParamSpec("filter_scale_psd", 0.0, "1/rad", "random walk of the wheel turn's scale error per radian turned (load, tyre wear)"),
@@ -251,7 +252,8 @@ NON_NEGATIVE_KEYS = (
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
     "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
     "filter_compass_lag_s",
-    "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate", "filter_reacquire_drift_deg",
+    "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate",
+    "filter_follow_show_rate", "filter_reacquire_drift_deg",
     "hard_iron_min_distance_m", "hard_iron_restart_fraction")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""
 FRACTION_KEYS = ("refine_compass_bad_fraction", "cal_no_compass_weight")

@@ -98,3 +98,47 @@ def test_compass_sigma_grows_with_the_turn_rate_by_filter_compass_lag_s():
     assert float(of.compass_sigma(p, np.radians(20.0), 0.0)) == pytest.approx(np.radians(np.hypot(3.0, 2.0)), rel=1e-12)
     off = p._replace(filter_compass_lag_s=0.0)
     assert float(of.compass_sigma(off, 0.0, turn)) == pytest.approx(np.radians(3.0), rel=1e-12)
+
+
+def _rate_filter(params, beta, sigma_beta, delta_deg):
+    f = of.init_offset_state(params).fields()
+    return of.OffsetState.pack(f._replace(delta=jnp.asarray(deg(delta_deg)), beta=jnp.asarray(beta),
+                                          p11=jnp.asarray(sigma_beta ** 2), p00=jnp.asarray(deg(4.0) ** 2)))
+
+
+def _steady(params, delta_deg, since_drift):
+    f = of.init_offset_state(of.steady_params(params)).fields()
+    return of.OffsetState.pack(f._replace(delta=jnp.asarray(deg(delta_deg)), p00=jnp.asarray(deg(1.0) ** 2),
+                                          since_drift=jnp.asarray(since_drift)))
+
+
+@pytest.mark.parametrize("beta, shown_deg", [(2e-3, 10.0), (1e-4, 0.0)])
+def test_follow_shows_a_significant_rate_without_taking_it_into_the_steady_state(beta, shown_deg):
+    """A rate of 10 sigmas: the heading shows the rate filter's offset (10 deg) when the rate is larger than
+    filter_follow_show_rate (5e-4 rad/m), the steady filter's (0 deg) when it is 1e-4 (what a hill's compass fakes);
+    either way the steady state keeps its own offset, and with the calibration on (hold_on_drift False) no hold
+    starts."""
+    params = jm.make_params()
+    rate = _rate_filter(params, beta, beta / 10.0, 10.0)
+    steady, shown = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
+                              hold_on_drift=False)
+    assert float(steady.delta) == pytest.approx(0.0, abs=1e-12)
+    assert float(steady.since_drift) == pytest.approx(of.NEVER_DRIFTED_M + 1.0)
+    assert np.degrees(float(shown.delta)) == pytest.approx(shown_deg, abs=0.05)  # smooth steps: 0.2 % left
+    expected_p00 = deg(4.0) ** 2 if shown_deg else deg(1.0) ** 2
+    assert float(shown.p00) == pytest.approx(expected_p00, rel=0.03)
+
+
+def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_the_calibration():
+    """Within filter_follow_hold_m of a restart (the calibration captured a drift) the steady filter takes the rate
+    filter's state, rate taken out; with the calibration off (hold_on_drift) a large significant rate starts the hold,
+    with it on it does not."""
+    params = jm.make_params()
+    rate = _rate_filter(params, 2e-3, 2e-4, 10.0)
+    held, _ = of.follow(params, _steady(params, 0.0, 100.0), rate, False, 1.0, hold_on_drift=False)
+    assert np.degrees(float(held.delta)) == pytest.approx(10.0, abs=1e-6)
+    assert float(held.beta) == 0.0 and float(held.p11) == 0.0
+    for hold_on_drift, since in ((True, 0.0), (False, of.NEVER_DRIFTED_M + 1.0)):
+        steady, _ = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0, hold_on_drift)
+        assert float(steady.since_drift) == pytest.approx(since)
+        assert np.degrees(float(steady.delta)) == pytest.approx(10.0 if hold_on_drift else 0.0, abs=1e-6)
