@@ -112,10 +112,10 @@ def _steady(params, delta_deg, since_drift):
                                           since_drift=jnp.asarray(since_drift)))
 
 
-@pytest.mark.parametrize("beta, shown_deg", [(2e-3, 10.0), (1e-4, 0.0)])
+@pytest.mark.parametrize("beta, shown_deg", [(2e-3, 10.0), (2e-5, 0.0)])
 def test_follow_shows_a_significant_rate_without_taking_it_into_the_steady_state(beta, shown_deg):
     """A rate of 10 sigmas: the heading shows the rate filter's offset (10 deg) when the rate is larger than
-    filter_follow_show_rate (5e-4 rad/m), the steady filter's (0 deg) when it is 1e-4 (what a hill's compass fakes);
+    filter_follow_show_rate (1e-4 rad/m), the steady filter's (0 deg) when it is 2e-5 (less than a hill's compass fakes);
     either way the steady state keeps its own offset, and with the calibration on (hold_on_drift False) no hold
     starts."""
     params = jm.make_params()
@@ -126,7 +126,7 @@ def test_follow_shows_a_significant_rate_without_taking_it_into_the_steady_state
     assert float(steady.since_drift) == pytest.approx(of.NEVER_DRIFTED_M + 1.0)
     assert np.degrees(float(shown.delta)) == pytest.approx(shown_deg, abs=0.05)  # smooth steps: 0.2 % left
     expected_p00 = deg(4.0) ** 2 if shown_deg else deg(1.0) ** 2
-    assert float(shown.p00) == pytest.approx(expected_p00, rel=0.03)
+    assert float(shown.p00) == pytest.approx(expected_p00, rel=0.05)
 
 
 def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_the_calibration():

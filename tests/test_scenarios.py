@@ -340,8 +340,8 @@ def test_a_compass_that_lags_in_turns_is_trusted_less_there():
 def test_a_hills_compass_that_fakes_a_small_rate_is_not_shown():
     """highway/hills/105 (held-out seed): the compass's dip errors on the grades make the rate filter learn -50 to
     -110 µrad/m for 10 km, "significant" at 3-4.7 sigmas, and its offset runs 10 deg off while the steady filter's
-    stays within 1.5 deg.  The heading shows the rate filter only above filter_follow_show_rate (5e-4 rad/m).
-    Measured (stop 30): 1.68 deg, 5.53 deg with filter_follow_show_rate 0 (6.98 deg at stop 29, when a significant rate
+    stays within 1.5 deg.  The heading shows the rate filter only above filter_follow_show_rate (1e-4 rad/m).
+    Measured (stop 30): 1.22 deg, 5.53 deg with filter_follow_show_rate 0 (6.98 deg at stop 29, when a significant rate
     was copied into the steady filter)."""
     drive = sc.make_drive("highway", "hills", 105)
     _assert_default_beats(drive, "show_rate_0", {"filter_follow_show_rate": 0.0}, 4.0, 0.5)
