@@ -300,6 +300,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                           absolute_ok & ~initializing, drifting, tilt, d_lost)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
+    offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
@@ -379,9 +380,12 @@ def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, init
         rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
         rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
         offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
-        # A ratio still moving by more than RECALIBRATION_HOLD says the wheels drift: the steady filter follows the
-        # rate filter (filter_follow_hold_m) while the stretches refine it.
-        steady = _offset.restart_hold(steady, computed_once(jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD))
+        # A ratio still moving by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift (a tyre
+        # mismatch, captured) says the wheels drift: the steady filter follows the rate filter while the stretches
+        # refine it.
+        moving = jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD
+        moving = moving & (offset.since_drift < params.filter_follow_hold_m)
+        steady = _offset.restart_hold(steady, computed_once(moving))
     return cal_state, offset, steady
 
 

@@ -431,6 +431,18 @@ NEVER_DRIFTED_M = 1e12
 """``since_drift`` of a filter that has not seen the wheels drift."""
 
 
+def count_since_large_drift(params, rate_filter, previous, d_t):
+    """The rate filter with ``since_drift`` the metres since its rate was last large (``large_drift``), counted on
+    from ``previous`` (its state before this sample), so that a restart of the filter does not reset the count.
+
+    A recalibration restarts the steady filter's follow hold only within filter_follow_hold_m of such a drift: the
+    stretches refine every ratio by 1e-4 now and then, and on a hills drive without a tyre mismatch one such step
+    held the steady filter to a rate filter drifting 50 µrad/m for 10 km (highway/hills/105 over 600 s: 7.07 deg,
+    2.75 deg with this; docs/tuning.md, stop 30)."""
+    since = jnp.where(large_drift(params, rate_filter), 0.0, jnp.minimum(previous.since_drift, NEVER_DRIFTED_M) + d_t)
+    return OffsetState(rate_filter.vector + (since - rate_filter.since_drift)[..., None] * _SINCE_DRIFT_ONEHOT)
+
+
 def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
     """The steady F-DELTA and the heading it shows: drawn to the rate filter while the wheels drift.
 

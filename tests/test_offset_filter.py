@@ -142,3 +142,18 @@ def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_
         steady, _ = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0, hold_on_drift)
         assert float(steady.since_drift) == pytest.approx(since)
         assert np.degrees(float(steady.delta)) == pytest.approx(10.0 if hold_on_drift else 0.0, abs=1e-6)
+
+
+def test_the_rate_filter_counts_the_metres_since_a_large_drift_through_its_own_restarts():
+    """since_drift of the rate filter: 0 where its rate is large and significant, else the previous sample's count plus
+    this sample's metres, whatever the update did to the field (a restart sets it to NEVER_DRIFTED_M)."""
+    params = jm.make_params()
+    previous = _rate_filter(params, 0.0, 1e-3, 0.0)
+    previous = of.OffsetState.pack(previous.fields()._replace(since_drift=jnp.asarray(300.0)))
+    restarted = of.start(params)  # since_drift NEVER_DRIFTED_M
+    counted = of.count_since_large_drift(params, restarted, previous, 2.5)
+    assert float(counted.since_drift) == pytest.approx(302.5)
+    np.testing.assert_array_equal(np.delete(np.asarray(counted.vector), of.OffsetFields._fields.index("since_drift")),
+                                  np.delete(np.asarray(restarted.vector), of.OffsetFields._fields.index("since_drift")))
+    drifting = of.count_since_large_drift(params, _rate_filter(params, 2e-3, 2e-4, 0.0), previous, 2.5)
+    assert float(drifting.since_drift) == 0.0
