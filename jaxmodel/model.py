@@ -307,7 +307,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
                                tilt, d_lost)
     # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.
     steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
-                                   hold_on_drift=not (config.calibration and config.mode == "complementary"))
+                                   hold_on_drift=not _captures_drift(config))
     f_delta = shown.delta
 
     field_sum, field_count = _compass.learn_field(
@@ -361,6 +361,12 @@ def _seed_expected_field(params, state, b_m, compass_ok):
     return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned), (field_sum, field_count)
 
 
+def _captures_drift(config):
+    """Whether a large, significant drift of the rate filter is captured into the left/right ratio (``_calibrate``):
+    the robust complementary mode with the calibration on."""
+    return config.calibration and config.robust and config.mode == "complementary"
+
+
 def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, initialized):
     """EP 0619873: the left/right dpp calibration; in the robust complementary mode a large, significant
     drift of the rate filter is captured into the ratio at once.  A new calibration shifts the offset's
@@ -370,7 +376,7 @@ def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, init
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
         compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
         robust=robust)
-    if config.calibration and robust and config.mode == "complementary":
+    if _captures_drift(config):
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
         known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
         capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))

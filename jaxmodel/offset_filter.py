@@ -45,10 +45,11 @@ calibration has caught it is, on a drive without one, noise learned from a compa
 are correlated over kilometres (dip on hills: 3 % of grade puts a level compass 7 deg off for
 600 m; anomalies), and the filter integrates it (clean drives 0.8-2 deg against the rate-free
 seed filter's 0.5-1.1 deg).  So a second, *steady* F-DELTA runs beside it without a rate state
-(``steady_params``: turn noise ``filter_steady_turn_sigma``) and gives the heading; it is drawn to
+(``steady_params``: turn noise ``filter_steady_turn_sigma``) and gives the heading; the heading shows
 the rate filter's offset while that filter's rate is significant (``follow``: more than
-``filter_rate_significance`` of its sigmas, the wheels are seen to drift), and goes its own way
-again once the calibration has taken the drift out (docs/tuning.md, "steady F-DELTA").
+``filter_rate_significance`` of its sigmas and about ``filter_follow_show_rate``, the wheels are seen to
+drift), and the steady filter takes the rate filter's state only during the follow hold after the
+calibration captured such a drift (docs/tuning.md, "steady F-DELTA" and stop 30).
 
 Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degree spikes):
 
@@ -107,7 +108,8 @@ class OffsetFields(NamedTuple):
     magnetic east or west); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
     averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
     ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2);
-    ``since_drift`` metres since the rate filter's rate was last large and significant (``follow``);
+    ``since_drift`` in the rate filter metres since its rate was last large (``count_since_large_drift``), in
+    the steady filter metres since its follow hold last restarted (``follow``, ``restart_hold``);
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
     LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last accepted."""
 
@@ -385,9 +387,10 @@ def shift_rate(fs, change_per_m):
 
 
 def bound(params, fs, initialized):
-    """Heading bound (rad): sqrt of the offset variance, at least the running disagreement with the compass while
-    the filter is ``lost`` (a heading that the compass contradicts by more than filter_reacquire_large_deg is not
-    supported, whatever its variance says); UNINITIALIZED_BOUND before the start."""
+    """Heading bound (rad) of ``fs`` (an OffsetState or OffsetFields): sqrt of the offset variance, at least the
+    running disagreement with the compass while the filter is ``lost`` (a heading that the compass contradicts by
+    more than filter_reacquire_large_deg is not supported, whatever its variance says); UNINITIALIZED_BOUND before
+    the start."""
     sigma = jnp.sqrt(jnp.maximum(fs.p00, 0.0))
     sigma = jnp.where(lost(params, fs.disturbance), jnp.maximum(sigma, jnp.abs(fs.disturbance)), sigma)
     return jnp.where(initialized > 0.5, sigma, UNINITIALIZED_BOUND)
@@ -417,8 +420,9 @@ def follow_weight(params, rate_filter):
 def large_drift(params, rate_filter):
     """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
     filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
-    grades look like.  It starts the steady filter's follow hold (``follow``) and a capture of the drift into the
-    left/right ratio (``calibration.capture_rate``)."""
+    grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
+    the window in which recalibrations restart the steady filter's follow hold (``count_since_large_drift``), and,
+    with the calibration off, the hold itself (``follow``)."""
     return (follow_weight(params, rate_filter) > 0.5) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
 
 
@@ -463,9 +467,10 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
       "significant") the rate filter still follows while the steady one would lag by degrees.
 
     Before stop 30 a significant rate was copied into the steady state too: hills drives of seeds 101-109
-    (36) 1.41 deg against 1.28 deg now (docs/tuning.md, stop 30).  ``since_drift`` of the steady filter counts the
+    (36) 1.41 deg against 1.23 deg now (docs/tuning.md, stop 30).  ``since_drift`` of the steady filter counts the
     metres since the hold last restarted; d_t (m) is this sample's distance.  Returns (steady state,
-    shown state: the steady one with delta, p00 and disturbance blended towards the rate filter's).
+    shown: the steady state's OffsetFields with delta, p00 and disturbance blended towards the rate filter's,
+    what the heading and ``bound`` read).
     """
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
@@ -486,4 +491,5 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))
-    return OffsetState.pack(blended), OffsetState.pack(shown)
+    # ``shown`` stays unpacked: only its delta, p00 and disturbance are read.
+    return OffsetState.pack(blended), shown
