@@ -33,11 +33,21 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .packed import computed_once, packed_state
+from .track import max_curvature
 
 GUARD_TAU_S = 0.3
 """Time constant (s) of the wheel and dD rates the next increments are predicted from."""
 GUARD_MAX_SUBSTITUTED = 20.0
 """After this many substituted samples in a row the counts are believed again (a real jump)."""
+GUARD_WINDOW_M = 0.2
+"""Travelled metres of the raw counts' curvature window behind ``impossible`` (short: a stuck wheel turns the wheel
+heading by 2/T rad per metre until it is seen; ~7 deg for the matrix's vehicles)."""
+IMPOSSIBLE_CURVATURE_FACTOR = 2.0
+"""With front-axle sensors, a sample whose |dD| exceeds this times eq. (14)'s geometric maximum of dD/AD (plus the
+course check's tolerance) is substituted however many came before it: the runs beyond GUARD_MAX_SUBSTITUTED that are
+believed again are real changes of turn, never a wheel that stopped counting (stop 31: a left sensor stuck for 5 s
+put the default 8-28 deg RMSE off on every baseline drive of the outside bench).  The factor leaves room for nominal
+B and T_F; rear-axle sensors have no such bound (a skid-steer robot pivots)."""
 GUARD_HORIZON_S = 10.0
 """Rates learned before a gap in time longer than this (s) predict nothing: across it the course check is
 off and no motion is substituted (a logger that stopped for minutes, a clock that jumped; extrapolated
@@ -56,6 +66,10 @@ class GuardFields(NamedTuple):
     substituted: jnp.ndarray  # substituted samples in a row
     removed_left: jnp.ndarray   # pulses last removed from the left counter (0: none pending)
     removed_right: jnp.ndarray  # pulses last removed from the right counter
+    # The raw counts' dD (signed as the travel) and |AD| over an exponential window of GUARD_WINDOW_M travelled
+    # metres (m, m): a curvature no front axle can drive (``impossible``).
+    window_dD: jnp.ndarray
+    window_AD: jnp.ndarray
     # The two-sided re-estimate of a rounded removal (``_vernier``), on the sample index k: running means
     # of D and k D of the cumulative dD over the last ~1/VERNIER_LEVEL_WEIGHT samples, relative to the
     # current sample (m, m); for a pending removal, the wheel it was taken from (+1 left, -1 right, 0 none),
@@ -115,12 +129,27 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     dD = d_left - d_right
     tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S)
-    trusting = g.substituted < GUARD_MAX_SUBSTITUTED
+    # A front-axle turn beyond eq. (14)'s geometric maximum curvature (IMPOSSIBLE_CURVATURE_FACTOR times it) over
+    # the last GUARD_WINDOW_M of the raw counts is no vehicle's motion however long it lasts (a wheel sensor that
+    # stopped counting: dD/AD = 2); the window's cumulative counts are within 2 pulses of the truth per wheel.
+    window_dD, window_AD = _curvature_window(g, d_left, d_right, counts_ok & ~left_fast & ~right_fast)
+    # Per sample each wheel's count is within a pulse of its travel (dD within 2 pulses, AD within 1); over the
+    # window, whose cumulative counts keep that bound, a slow stuck wheel is seen too.
+    c_max = max_curvature(params.B, params.T_F)
+    c_impossible = IMPOSSIBLE_CURVATURE_FACTOR * c_max
+    impossible = computed_once((params.sensor_axle > 0.5) & counts_ok & ~left_fast & ~right_fast & (
+        (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
+        | (jnp.abs(dD) > c_impossible * jnp.abs(0.5 * (d_left + d_right)) + 3.0 * dpp)))
+    trusting = (g.substituted < GUARD_MAX_SUBSTITUTED) | impossible
     raw_ok = counts_ok & ~left_fast & ~right_fast & ~turn_bad
     blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
     both = computed_once(left_fast & right_fast)
     # Flags read by every field of the state: computed once (packed.computed_once).
+    raw_ok = raw_ok & ~impossible
     fix = computed_once(counts_ok & ~raw_ok & trusting)
+    # A turn rate learned from a stuck wheel's believed samples is not substituted for it: at most c_max.
+    turn_limit = c_max * jnp.abs(jnp.where(blame_left, d_right, d_left))
+    pred_dD = jnp.where(impossible, jnp.clip(pred_dD, -turn_limit, turn_limit), pred_dD)
     new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
@@ -157,7 +186,9 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
                       substituted,
                       _pending(single, pulses_left, g.removed_left),
-                      _pending(single, pulses_right, g.removed_right)], axis=-1)
+                      _pending(single, pulses_right, g.removed_right),
+                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept)],
+                     axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, new
 
@@ -232,6 +263,24 @@ def _vernier(g, gs, d_left, d_right, raw_dD, usable, start, single, wheel, remov
     step = jnp.where(usable, 1.0, 0.0)
     means = jnp.stack([(1.0 - w) * (g.m_D - dD), (1.0 - w) * (g.m_kD - step * g.m_D - dD * _M_K + step * dD)], axis=-1)
     return d_left, d_right, jnp.concatenate([means, p], axis=-1), fired
+
+
+def _curvature_window(g, d_left, d_right, usable):
+    """The exponential window of GUARD_WINDOW_M travelled metres moved on by one sample's increments (m):
+    (dD signed as the travel, |AD|); unchanged where not ``usable``."""
+    ad = 0.5 * (d_left + d_right)
+    keep = jnp.exp(-jnp.abs(ad) / GUARD_WINDOW_M)
+    dD = d_left - d_right
+    return (jnp.where(usable, keep * g.window_dD + jnp.where(ad >= 0.0, dD, -dD), g.window_dD),
+            jnp.where(usable, keep * g.window_AD + jnp.abs(ad), g.window_AD))
+
+
+def _stored_window(g, turn_bad, raw_window, d_left, d_right, usable):
+    """The curvature window kept for the next sample: the raw counts', except after a sample the course check
+    failed (a burst or a spike: its substitute is kept, so one burst does not make the next metres look
+    impossible); a stuck wheel passes the course check at low speed and, at speed, is judged on each sample."""
+    final = _curvature_window(g, d_left, d_right, usable)
+    return jnp.where(turn_bad, final[0], raw_window[0]), jnp.where(turn_bad, final[1], raw_window[1])
 
 
 def _pending(fixed, pulses, removed):

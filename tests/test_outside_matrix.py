@@ -89,3 +89,35 @@ def test_spurious_pulses_add_single_pulses_at_the_asked_rate(drive):
     assert set(np.unique(steps)) <= {0, 1}  # one pulse at a time, never taken away
     minutes = (drive.columns["time_s"][-1] - drive.columns["time_s"][0]) / 60.0
     assert 0 < steps.sum() <= 4.0 * 2.0 * minutes + 3  # 2 per minute (Poisson)
+
+
+def test_stuck_wheel_freezes_the_left_counter_for_5_s_and_loses_those_pulses(drive):
+    changed = _disturbed(drive, "stuck_wheel")
+    t = np.asarray(drive.columns["time_s"])
+    stuck = (t >= t[0] + 0.4 * (t[-1] - t[0])) & (t < t[0] + 0.4 * (t[-1] - t[0]) + 5.0)
+    left = sc.unwrap_counter(changed.columns["left_pulses"])
+    original = sc.unwrap_counter(drive.columns["left_pulses"])
+    assert np.all(np.diff(left)[stuck[1:]] == 0) and np.any(np.diff(original)[stuck[1:]] != 0)
+    np.testing.assert_array_equal(np.diff(left)[~stuck[1:]], np.diff(original)[~stuck[1:]])
+    np.testing.assert_array_equal(changed.columns["right_pulses"], drive.columns["right_pulses"])
+
+
+def test_counter_reset_restarts_both_counters_from_zero_halfway(drive):
+    changed = _disturbed(drive, "counter_reset")
+    i = len(drive.columns["time_s"]) // 2
+    for key in ("left_pulses", "right_pulses"):
+        assert changed.columns[key][i] == 0
+        steps = np.diff(sc.unwrap_counter(drive.columns[key]))
+        np.testing.assert_array_equal(np.diff(sc.unwrap_counter(changed.columns[key]))[i:], steps[i:])
+        np.testing.assert_array_equal(changed.columns[key][:i], drive.columns[key][:i])
+
+
+def test_dropped_rows_and_time_jitter_keep_time_increasing_and_the_truth_aligned(drive):
+    dropped = _disturbed(drive, "dropped_rows")
+    n = len(dropped.columns["time_s"])
+    assert 0.9 * len(drive.columns["time_s"]) < n < len(drive.columns["time_s"])
+    np.testing.assert_array_equal(dropped.truth["time_s"], dropped.columns["time_s"])
+    jittered = _disturbed(drive, "time_jitter")
+    shift = np.asarray(jittered.columns["time_s"]) - np.asarray(drive.columns["time_s"])
+    assert np.all(np.abs(shift) <= 0.02) and np.any(shift != 0.0)
+    assert np.all(np.diff(jittered.columns["time_s"]) > 0.0)
