@@ -202,7 +202,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
     if robust:
-        d_left, d_right, raw_ok, speed_ok, kept, guard_state = _guard.guard(
+        d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, guard_state = _guard.guard(
             params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
             dpp_left, dpp_right)
         n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
@@ -220,7 +220,7 @@ def _odometer(params, state, sample, track_table, robust=False):
         d_right = jnp.where(plausible, d_right, 0.0)
         n_left = jnp.where(plausible, n_left, 0.0)
         n_right = jnp.where(plausible, n_right, 0.0)
-        kept, guard_state = plausible, state.guard
+        kept, guard_state, dD_sigma = plausible, state.guard, jnp.zeros_like(d_left)
 
     dD = d_left - d_right
     AD = 0.5 * (d_left + d_right)
@@ -244,7 +244,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
                 d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
                 track=track, alpha=alpha, plausible=plausible, kept=kept,
-                guard=guard_state, turn_rate=guard_state.rate_dD / track)
+                guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
 def _compass_stage(params, state, sample, config, d_t, alpha):
@@ -292,7 +292,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha)
+    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
@@ -302,7 +302,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
-    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha)
+    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
                                tilt, d_lost)
     # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.

@@ -199,8 +199,9 @@ def start(params):
     return init_offset_state(params)
 
 
-def predict(params, fs, ad_signed, d_t, alpha):
-    """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad).
+def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
+    """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad); ``turn_sigma`` (rad) the
+    uncertainty of a turn the odometer guard substituted for a wheel that stopped counting (added to the offset's).
 
     x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0],
     [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]].  The coloured compass error and the tilt error are first-order
@@ -218,7 +219,7 @@ def predict(params, fs, ad_signed, d_t, alpha):
     # F is diagonal but for its row 0: the offset moves by the rate times AD and by the scale error
     # times the wheel turn.  Written on that structure, with none of the dense products' zeros.
     d = (1.0, phi_b, phi, 1.0, phi_g)
-    Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2,
+    Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2 + turn_sigma ** 2,
          params.filter_rate_psd * d_t,
          deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
          params.filter_scale_psd * jnp.abs(alpha),

@@ -147,9 +147,10 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # Flags read by every field of the state: computed once (packed.computed_once).
     raw_ok = raw_ok & ~impossible
     fix = computed_once(counts_ok & ~raw_ok & trusting)
-    # A turn rate learned from a stuck wheel's believed samples is not substituted for it: at most c_max.
-    turn_limit = c_max * jnp.abs(jnp.where(blame_left, d_right, d_left))
-    pred_dD = jnp.where(impossible, jnp.clip(pred_dD, -turn_limit, turn_limit), pred_dD)
+    # A wheel that stopped counting says nothing of the turn, and the guard's turn rate may have learned the samples
+    # of it that passed (at parking speeds): it is replaced by the other wheel's travel (no turn), and the filter
+    # is told the turn is unknown (``dD_sigma``).
+    pred_dD = jnp.where(impossible, 0.0, pred_dD)
     new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
     new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
@@ -174,7 +175,8 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # A rounded removal (not an exact modulus or returning spike) is estimated again, two-sided, once
     # VERNIER_SAMPLES samples after it have been seen; the pulses it missed are taken off then.
     single = fix & ~both
-    start = computed_once(single & ~exact)
+    # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
+    start = computed_once(single & ~exact & ~impossible)
     d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, time_ok & kept, start, single,
                                          jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
 
@@ -190,7 +192,9 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept)],
                      axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
-    return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, new
+    # The turn substituted for an impossible sample is a guess within c_max of the travel: its uncertainty (m of dD).
+    dD_sigma = jnp.where(fix & impossible, c_max * jnp.abs(0.5 * (d_left + d_right)), 0.0)
+    return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, dD_sigma, new
 
 
 VERNIER_SAMPLES = 5.0
