@@ -9,7 +9,11 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
 * course: the differential increment dD must agree with its recent rate (time-smoothed over
   ``GUARD_TAU_S``) within ``glitch_pulses`` pulses plus ``glitch_dD_rate`` x dt: dD is the turn,
   and a car's yaw rate cannot jump within one sample, while a burst of spurious pulses on one
-  wheel moves dD by the whole burst.
+  wheel moves dD by the whole burst;
+* geometry (front-axle sensors): a dD beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum
+  of dD/AD, per sample or over GUARD_WINDOW_M of the raw counts, is no vehicle's turn (a sensor that stopped
+  counting: dD/AD = 2).  Such samples are replaced by the other wheel's travel with no turn for as long as
+  they last, and ``dD_sigma`` hands the filter that turn's uncertainty.
 
 Which wheel is at fault: the one whose increment departs more from its own recent rate.  The
 whole number of pulses by which it departs from the other wheel's increment plus (or minus) the
