@@ -56,28 +56,17 @@ def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, monkeyp
 
 
 def _guard_run(params, d_left, d_right, dt=0.1):
-    """The guard alone over per-sample wheel increments (m); returns the kept (d_left, d_right) arrays."""
+    """The guard alone over per-sample wheel increments (m); returns the kept (d_left, d_right) per sample, (n, 2),
+    and its dD_sigma (m) per sample."""
     gs = plausibility.init_guard_state()
-    dpp = params.dpp_left
-    kept = []
+    kept, sigmas = [], []
     for i, (left, right) in enumerate(zip(d_left, d_right)):
         out = plausibility.guard(params, gs, jnp.asarray(left), jnp.asarray(right), jnp.asarray(dt),
-                                 jnp.asarray(i > 0), jnp.asarray(i > 0), dpp, dpp)
+                                 jnp.asarray(i > 0), jnp.asarray(i > 0), params.dpp_left, params.dpp_right)
         gs = out[-1]
         kept.append((float(out[0]), float(out[1])))
-    return np.array(kept)
-
-
-def _guard_sigmas(params, d_left, d_right, dt=0.1):
-    """The guard's dD_sigma (m) per sample over the same increments as ``_guard_run``."""
-    gs = plausibility.init_guard_state()
-    sigmas = []
-    for i, (left, right) in enumerate(zip(d_left, d_right)):
-        out = plausibility.guard(params, gs, jnp.asarray(left), jnp.asarray(right), jnp.asarray(dt),
-                                 jnp.asarray(i > 0), jnp.asarray(i > 0), params.dpp_left, params.dpp_left)
-        gs = out[-1]
-        sigmas.append(out[-2])
-    return sigmas
+        sigmas.append(float(out[-2]))
+    return np.array(kept), sigmas
 
 
 def _quantized(distance, dpp):
@@ -93,7 +82,7 @@ def test_a_turn_at_the_geometric_maximum_curvature_is_believed():
     ad[:50] = np.linspace(0.0, speed * 0.1, 50)  # pulling away at full lock
     s = np.cumsum(ad)
     left, right = _quantized(s * (1.0 + c / 2.0), 0.02), _quantized(s * (1.0 - c / 2.0), 0.02)
-    kept = _guard_run(params, left, right)
+    kept, _ = _guard_run(params, left, right)
     np.testing.assert_allclose(np.cumsum(kept[:, 0] - kept[:, 1])[-1], np.cumsum(left - right)[-1], atol=0.041)
 
 
@@ -103,14 +92,13 @@ def test_a_stuck_front_wheel_is_substituted_for_its_whole_length_and_a_rear_axle
     left = right.copy()
     left[50:150] = 0.0
     front = jm.make_params({"dpp_left": 0.02, "dpp_right": 0.02})
-    kept = _guard_run(front, left, right)
+    kept, sigmas = _guard_run(front, left, right)
     # More than GUARD_MAX_SUBSTITUTED (20) samples: the stuck wheel is still replaced by the other's travel.
     assert plausibility.GUARD_MAX_SUBSTITUTED < 100
     assert abs(np.sum(kept[:, 0] - kept[:, 1])) < 0.1, np.sum(kept[:, 0] - kept[:, 1])  # raw: -15 m of dD
     # ... and the filter is told its turn is unknown on each substituted sample (c_max times the travel).
-    sigmas = [float(_guard_sigma) for _guard_sigma in _guard_sigmas(front, left, right)]
     assert all(v > 0.0 for v in sigmas[55:150]) and all(v == 0.0 for v in sigmas[:50] + sigmas[160:])
     # A skid-steer (rear-axle sensors) may pivot about one track: after GUARD_MAX_SUBSTITUTED it is believed.
     rear = jm.make_params({"dpp_left": 0.02, "dpp_right": 0.02, "sensor_axle": "rear"})
-    kept = _guard_run(rear, left, right)
+    kept, _ = _guard_run(rear, left, right)
     assert np.sum(kept[:, 0] - kept[:, 1]) < -10.0
