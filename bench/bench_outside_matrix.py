@@ -103,28 +103,24 @@ def _spurious_pulses(drive, per_minute=2.0):
         drive.columns[key] = counter % 65536
 
 
-def _decimate(drive, every):
-    """Every ``every``-th sample of the log and of its truth (a logger at 10 / every Hz)."""
+def _keep_rows(drive, keep):
+    """Only the rows ``keep`` selects (a mask or a slice), of the log and of its truth."""
     n = len(drive.columns["time_s"])
     for table in (drive.columns, drive.truth):
         for key, value in table.items():
             if isinstance(value, np.ndarray) and value.shape[:1] == (n,):
-                table[key] = value[::every]
+                table[key] = value[keep]
+
+
+def _decimate(drive, every):
+    """Every ``every``-th sample of the log and of its truth (a logger at 10 / every Hz)."""
+    _keep_rows(drive, slice(None, None, every))
 
 
 def _time_jitter(drive, jitter_s=0.02):
     rng = np.random.default_rng([drive.seed, 8])
     t = np.asarray(drive.columns["time_s"], float)
     drive.columns["time_s"] = t + rng.uniform(-jitter_s, jitter_s, t.size)
-
-
-def _keep_rows(drive, keep):
-    """Only the rows where ``keep`` is true, of the log and of its truth."""
-    n = len(drive.columns["time_s"])
-    for table in (drive.columns, drive.truth):
-        for key, value in table.items():
-            if isinstance(value, np.ndarray) and value.shape[:1] == (n,):
-                table[key] = value[keep]
 
 
 def _dropped_rows(drive, fraction=0.03, gap_s=3.0):

@@ -47,11 +47,12 @@ GUARD_WINDOW_M = 0.2
 """Travelled metres of the raw counts' curvature window behind ``impossible`` (short: a stuck wheel turns the wheel
 heading by 2/T rad per metre until it is seen; ~7 deg for the matrix's vehicles)."""
 IMPOSSIBLE_CURVATURE_FACTOR = 2.0
-"""With front-axle sensors, a sample whose |dD| exceeds this times eq. (14)'s geometric maximum of dD/AD (plus the
-course check's tolerance) is substituted however many came before it: the runs beyond GUARD_MAX_SUBSTITUTED that are
-believed again are real changes of turn, never a wheel that stopped counting (stop 31: a left sensor stuck for 5 s
-put the default 8-28 deg RMSE off on every baseline drive of the outside bench).  The factor leaves room for nominal
-B and T_F; rear-axle sensors have no such bound (a skid-steer robot pivots)."""
+"""With front-axle sensors, a sample whose |dD| exceeds this times eq. (14)'s geometric maximum of dD/AD times |AD|
+(plus the counts' quantization: 3 pulses per sample, 4 over GUARD_WINDOW_M) is substituted however many came
+before it: the runs beyond GUARD_MAX_SUBSTITUTED that are believed again are real changes of turn, never a wheel
+that stopped counting (stop 31: a left sensor stuck for 5 s put the default 8-28 deg RMSE off on every baseline
+drive of the outside bench).  The factor leaves room for nominal B and T_F; rear-axle sensors have no such bound
+(a skid-steer robot pivots)."""
 GUARD_HORIZON_S = 10.0
 """Rates learned before a gap in time longer than this (s) predict nothing: across it the course check is
 off and no motion is substituted (a logger that stopped for minutes, a clock that jumped; extrapolated
@@ -114,13 +115,15 @@ def _snap(pulses, removed):
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
-    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, new GuardState).
+    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, new
+    GuardState).
 
     dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
     raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
     wheel beyond max_speed is a counter fault, not motion); kept: the sample's motion is used (raw
-    or substituted).  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
+    or substituted); dD_sigma: the uncertainty (m of dD) of a turn substituted for an ``impossible`` sample, else
+    0.  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
     """
     g = gs.fields()
     dpp = jnp.maximum(dpp_left, dpp_right)
@@ -133,23 +136,22 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     dD = d_left - d_right
     tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S)
-    # A front-axle turn beyond eq. (14)'s geometric maximum curvature (IMPOSSIBLE_CURVATURE_FACTOR times it) over
-    # the last GUARD_WINDOW_M of the raw counts is no vehicle's motion however long it lasts (a wheel sensor that
-    # stopped counting: dD/AD = 2); the window's cumulative counts are within 2 pulses of the truth per wheel.
-    window_dD, window_AD = _curvature_window(g, d_left, d_right, counts_ok & ~left_fast & ~right_fast)
-    # Per sample each wheel's count is within a pulse of its travel (dD within 2 pulses, AD within 1); over the
-    # window, whose cumulative counts keep that bound, a slow stuck wheel is seen too.
+    speed_ok = counts_ok & ~left_fast & ~right_fast
+    # A front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum curvature is no
+    # vehicle's motion however long it lasts (a wheel sensor that stopped counting: dD/AD = 2).  Per sample each
+    # wheel's count is within a pulse of its travel (dD within 2 pulses, AD within 1); over the last GUARD_WINDOW_M
+    # of the raw counts, whose cumulative counts keep that bound, a slow stuck wheel is seen too.
+    window_dD, window_AD = _curvature_window(g, d_left, d_right, speed_ok)
     c_max = max_curvature(params.B, params.T_F)
     c_impossible = IMPOSSIBLE_CURVATURE_FACTOR * c_max
-    impossible = computed_once((params.sensor_axle > 0.5) & counts_ok & ~left_fast & ~right_fast & (
+    impossible = computed_once((params.sensor_axle > 0.5) & speed_ok & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
         | (jnp.abs(dD) > c_impossible * jnp.abs(0.5 * (d_left + d_right)) + 3.0 * dpp)))
     trusting = (g.substituted < GUARD_MAX_SUBSTITUTED) | impossible
-    raw_ok = counts_ok & ~left_fast & ~right_fast & ~turn_bad
+    raw_ok = speed_ok & ~turn_bad & ~impossible
     blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
     both = computed_once(left_fast & right_fast)
     # Flags read by every field of the state: computed once (packed.computed_once).
-    raw_ok = raw_ok & ~impossible
     fix = computed_once(counts_ok & ~raw_ok & trusting)
     # A wheel that stopped counting says nothing of the turn, and the guard's turn rate may have learned the samples
     # of it that passed (at parking speeds): it is replaced by the other wheel's travel (no turn), and the filter
@@ -198,7 +200,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     # The turn substituted for an impossible sample is a guess within c_max of the travel: its uncertainty (m of dD).
     dD_sigma = jnp.where(fix & impossible, c_max * jnp.abs(0.5 * (d_left + d_right)), 0.0)
-    return d_left, d_right, raw_ok & ~fired, counts_ok & ~left_fast & ~right_fast, kept, dD_sigma, new
+    return d_left, d_right, raw_ok & ~fired, speed_ok, kept, dD_sigma, new
 
 
 VERNIER_SAMPLES = 5.0
