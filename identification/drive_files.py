@@ -24,6 +24,7 @@ import math
 import os
 import re
 import sys
+import tempfile
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
@@ -282,7 +283,14 @@ def _read_mf4(path: Path) -> dict[str, np.ndarray]:
         magic = fh.read(8)
     if not magic.startswith(b"MDF"):
         raise DriveLogError(f"{path}: not an ASAM MDF file (no MDF identification block)")
-    mdf = MDF(path)
+    # asammdf copies an unfinalised MDF 4.10+ file into its temporary folder and deletes the copy on close,
+    # which a corrupt file never reaches: a private folder, removed whatever happens, leaves nothing behind.
+    with tempfile.TemporaryDirectory(prefix="odocompass-mf4-") as scratch:
+        return _read_mf4_channels(MDF, path, scratch)
+
+
+def _read_mf4_channels(MDF, path: Path, scratch: str) -> dict[str, np.ndarray]:
+    mdf = MDF(path, temporary_folder=scratch)
     try:
         # The drive's channel group is the first that holds left_pulses; its master is time_s unless
         # it has a channel of that name.  Schema channels are taken from that group if it has them,

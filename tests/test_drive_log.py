@@ -524,3 +524,24 @@ def test_stacked_batch_matches_single_runs():
         x, y = np.asarray(batch.x)[b], np.asarray(batch.y)[b]
         assert np.all(x[n:] == x[n - 1]) and np.all(y[n:] == y[n - 1])
     assert np.asarray(batch.heading).dtype == np.float64
+
+
+@pytest.mark.parametrize("content", [b"MDF     4.10    " + b"\xff" * 300, b"MDF     4.10    garbage" * 10],
+                         ids=["unfinalised-flags", "garbage"])
+def test_a_corrupt_mf4_leaves_nothing_in_the_temporary_folder(tmp_path, monkeypatch, content):
+    """asammdf copies an unfinalised MDF 4.10+ file into the temporary folder and deletes the copy only on a
+    clean close: a corrupt one left a copy behind on every read (one per test run in /tmp)."""
+    import tempfile
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    path = tmp_path / "corrupt.mf4"
+    path.write_bytes(content)
+    with pytest.raises(DriveLogError):
+        read_drive(path)
+    import gc
+
+    gc.collect()
+    assert sorted(p.name for p in scratch.iterdir()) == []
+    assert path.read_bytes() == content  # the user's file untouched
