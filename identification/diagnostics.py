@@ -14,7 +14,8 @@ returns one line per problem, each naming the drive:
 * **counter_modulus mismatch**: counters at or above ``counter_modulus`` (they never reach it if
   they wrap there), or counters that fall back by more than half their range (a wrap) while never
   coming near the modulus (they wrap elsewhere), with the time of the first;
-* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times.
+* **odometer samples that failed the plausibility checks** (``odometer_valid`` = 0: dropped, or replaced where a
+  front wheel stopped counting), with their times.
 
 ``checked_params(path)`` loads and validates a parameter file with every error naming the file.
 """
@@ -164,8 +165,8 @@ def _odometer_warnings(name, cols) -> list[str]:
     if not bad.size:
         return []
     t = np.asarray(cols["time_s"], dtype=np.float64)[bad]
-    return [f"{name}: {bad.size} odometer samples dropped by the plausibility checks (implausible or non-finite "
-            f"counts) at {_times(t)}"]
+    return [f"{name}: {bad.size} odometer samples failed the plausibility checks (non-finite counts or a counter "
+            f"fault: dropped; a wheel that stopped counting: replaced by the other wheel's travel) at {_times(t)}"]
 
 
 def drive_warnings(drive, params, cols: Mapping[str, np.ndarray]) -> list[str]:

@@ -115,13 +115,15 @@ def _snap(pulses, removed):
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
-    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, new
+    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, plausible, kept, dD_sigma, new
     GuardState).
 
     dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
-    raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
-    wheel beyond max_speed is a counter fault, not motion); kept: the sample's motion is used (raw
+    raw_ok: the counts passed both checks as they were; plausible: they passed the speed check (a
+    wheel beyond max_speed is a counter fault, not motion) and the geometry check (a front wheel that
+    stopped counting is a sensor fault, its sample replaced); a burst that fails only the course check
+    is glitched motion, substituted, not a fault; kept: the sample's motion is used (raw
     or substituted); dD_sigma: the uncertainty (m of dD) of a turn substituted for an ``impossible`` sample, else
     0.  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
     """
@@ -200,7 +202,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     # The turn substituted for an impossible sample is a guess within c_max of the travel: its uncertainty (m of dD).
     dD_sigma = jnp.where(fix & impossible, c_max * jnp.abs(0.5 * (d_left + d_right)), 0.0)
-    return d_left, d_right, raw_ok & ~fired, speed_ok, kept, dD_sigma, new
+    return d_left, d_right, raw_ok & ~fired, speed_ok & ~impossible, kept, dD_sigma, new
 
 
 VERNIER_SAMPLES = 5.0
