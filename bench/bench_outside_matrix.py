@@ -26,7 +26,9 @@ stuck_wheel         the left counter stops for 5 s at 40 % of the drive, then co
 
 The last four were added at stop 31, after the default's constants were frozen, as judges only.
 
-    .venv/bin/python bench/bench_outside_matrix.py [--seeds 101,104] [--duration 900] [--only NAME,...]
+``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).
+
+    .venv/bin/python bench/bench_outside_matrix.py [--seeds 101,104] [--duration 900] [--only NAME,...] [--axle rear]
 """
 
 import argparse
@@ -167,12 +169,17 @@ def main():
     ap.add_argument("--seeds", default="101,104")
     ap.add_argument("--duration", type=float, default=900.0)
     ap.add_argument("--only", help="comma-separated disturbances to run (default: all)")
+    ap.add_argument("--axle", choices=("front", "rear"), default="front", help="the vehicles' wheel sensor axle")
     args = ap.parse_args()
+    if args.axle != "front":
+        vehicle = sc.vehicle
+        sc.vehicle = lambda seed: dict(vehicle(seed), sensor_axle=args.axle)
     chosen = DISTURBANCES if not args.only else {k: DISTURBANCES[k] for k in args.only.split(",")}
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
     base = [sc.make_drive(scenario, "baseline", seed, args.duration) for seed in seeds for scenario in sc.SCENARIOS]
-    print(f"baseline drives of seeds {seeds} ({len(base)} drives, {args.duration:g} s), heading RMSE after the "
+    print(f"baseline drives of seeds {seeds} ({len(base)} drives, {args.duration:g} s, {args.axle}-axle wheel "
+          f"sensors), heading RMSE after the "
           f"first minute (deg); ratio = default / min(odometer, compass)\n")
     print(f"| disturbance | drive | {' | '.join(MODES)} | ratio |\n|---|---|{'---|' * len(MODES)}---|")
     for name, disturb in chosen.items():

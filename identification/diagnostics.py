@@ -14,8 +14,8 @@ returns one line per problem, each naming the drive:
 * **counter_modulus mismatch**: counters at or above ``counter_modulus`` (they never reach it if
   they wrap there), or counters that fall back by more than half their range (a wrap) while never
   coming near the modulus (they wrap elsewhere), with the time of the first;
-* **odometer samples that failed the plausibility checks** (``odometer_valid`` = 0: dropped, or replaced where a
-  front wheel stopped counting), with their times.
+* **a counter that stopped counting** while the other counted on, for a second or more, with the times;
+* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times.
 
 ``checked_params(path)`` loads and validates a parameter file with every error naming the file.
 """
@@ -36,6 +36,10 @@ DISAGREE_FRACTION = 0.25
 """... in at least this fraction of the windows counts as persistent."""
 WINDOW_S = 60.0
 MAX_TIMES_SHOWN = 5
+STOPPED_MIN_S = 1.0
+"""A counter that did not change for this long while the other counted on ..."""
+STOPPED_OTHER_PULSES = 3.0
+"""... at least this many pulses per sample (beyond the quantization of a slow inner wheel) stopped counting."""
 
 
 def checked_params(path, label: str = "--params"):
@@ -159,21 +163,45 @@ def _counter_warnings(name, drive, params) -> list[str]:
     return out
 
 
+def _stopped_counter_warnings(name, drive, params) -> list[str]:
+    """Runs of at least STOPPED_MIN_S in which one counter did not change while the other counted at least
+    STOPPED_OTHER_PULSES per sample: a wheel sensor that stopped counting (no wheel of a car stands still while
+    the other rolls; plausibility.impossible replaces such samples where it can tell them from a turn)."""
+    out = []
+    modulus = float(params.counter_modulus)
+    t = np.asarray(drive.inputs.time_s, dtype=np.float64)
+    inc = {}
+    for side in ("left", "right"):
+        d = np.diff(np.asarray(getattr(drive.inputs, f"{side}_pulses"), dtype=np.float64))
+        inc[side] = d - modulus * np.round(d / modulus)  # across a wrap
+    for side, other in (("left", "right"), ("right", "left")):
+        stopped = (inc[side] == 0.0) & (np.abs(inc[other]) >= STOPPED_OTHER_PULSES)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], stopped.astype(np.int8), [0]])))
+        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if t[b] - t[a] >= STOPPED_MIN_S]
+        if runs:
+            shown = ", ".join(f"t = {t[a + 1]:.1f}-{t[b]:.1f} s" for a, b in runs[:MAX_TIMES_SHOWN])
+            more = f" and {len(runs) - MAX_TIMES_SHOWN} more" if len(runs) > MAX_TIMES_SHOWN else ""
+            out.append(f"{name}: {side}_pulses stopped counting while {other}_pulses counted on ({shown}{more}): a "
+                       f"wheel sensor fault; its samples were replaced by the other wheel's travel where the guard "
+                       f"could tell them from a turn (front-axle sensors, or wheel speeds above ~6 m/s)")
+    return out
+
+
 def _odometer_warnings(name, cols) -> list[str]:
     odo = np.asarray(cols["odometer_valid"])
     bad = np.flatnonzero(odo[1:] == 0) + 1  # the first sample only sets the counter references
     if not bad.size:
         return []
     t = np.asarray(cols["time_s"], dtype=np.float64)[bad]
-    return [f"{name}: {bad.size} odometer samples failed the plausibility checks (non-finite counts or a counter "
-            f"fault: dropped; a wheel that stopped counting: replaced by the other wheel's travel) at {_times(t)}"]
+    return [f"{name}: {bad.size} odometer samples dropped by the plausibility checks (implausible or non-finite "
+            f"counts) at {_times(t)}"]
 
 
 def drive_warnings(drive, params, cols: Mapping[str, np.ndarray]) -> list[str]:
     """Warnings for one drive (see the module docstring); ``cols`` as returned by ``estimate_drive``."""
     name = drive.path
     return (_compass_warnings(name, drive, params, cols) + _counter_warnings(name, drive, params)
-            + _odometer_warnings(name, cols))
+            + _stopped_counter_warnings(name, drive, params) + _odometer_warnings(name, cols))
 
 
 def batch_warnings(drives, params, config=None) -> list[str]:

@@ -202,14 +202,15 @@ def _odometer(params, state, sample, track_table, robust=False):
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
     if robust:
-        d_left, d_right, raw_ok, plausible, kept, dD_sigma, guard_state = _guard.guard(
+        d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, guard_state = _guard.guard(
             params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
             dpp_left, dpp_right)
         n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
         n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
-        # odometer_valid reports sensor faults (a wheel beyond max_speed, non-finite counts), as without the guard,
-        # and a front wheel that stopped counting (substituted, its motion kept); a burst within max_speed is
-        # substituted and not a fault.
+        # odometer_valid reports counter faults (a wheel beyond max_speed, non-finite counts), as
+        # without the guard; a burst within max_speed is substituted (its motion kept) and not a fault.
+        # (A wheel that stopped counting is substituted too; estimate warns of it from the log itself.)
+        plausible = speed_ok
     else:
         # A jump beyond max_speed (over the sample interval, 0.1 s if the time step is unusable)
         # is a counter fault; the sample's distance is dropped and the counters resync.

@@ -53,6 +53,12 @@ before it: the runs beyond GUARD_MAX_SUBSTITUTED that are believed again are rea
 that stopped counting (stop 31: a left sensor stuck for 5 s put the default 8-28 deg RMSE off on every baseline
 drive of the outside bench).  The factor leaves room for nominal B and T_F; rear-axle sensors have no such bound
 (a skid-steer robot pivots)."""
+MAX_LATERAL_ACCEL = 12.0
+"""m/s^2: the sensor axle's lateral acceleration v omega that no tyre on a road exceeds (about 1.2 g).  A wheel
+that reads nothing while the other moves is ``impossible`` on either axle when turning about the still wheel would be
+beyond it (within 3 pulses of dD): a wheel that stopped counting is seen from a wheel speed of sqrt(2
+MAX_LATERAL_ACCEL T), ~6 m/s (below that, on the rear axle, it cannot be told from a skid-steer's tight turn); a
+pivot (v ~ 0) never reaches it.  The matrix's drives stay below 2.4 m/s^2."""
 GUARD_HORIZON_S = 10.0
 """Rates learned before a gap in time longer than this (s) predict nothing: across it the course check is
 off and no motion is substituted (a logger that stopped for minutes, a clock that jumped; extrapolated
@@ -115,15 +121,13 @@ def _snap(pulses, removed):
 
 
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
-    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, plausible, kept, dD_sigma, new
+    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, new
     GuardState).
 
     dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
-    raw_ok: the counts passed both checks as they were; plausible: they passed the speed check (a
-    wheel beyond max_speed is a counter fault, not motion) and the geometry check (a front wheel that
-    stopped counting is a sensor fault, its sample replaced); a burst that fails only the course check
-    is glitched motion, substituted, not a fault; kept: the sample's motion is used (raw
+    raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
+    wheel beyond max_speed is a counter fault, not motion: the FMUs discard such a sample); kept: the sample's motion is used (raw
     or substituted); dD_sigma: the uncertainty (m of dD) of a turn substituted for an ``impossible`` sample, else
     0.  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
     """
@@ -146,12 +150,23 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     window_dD, window_AD = _curvature_window(g, d_left, d_right, speed_ok)
     c_max = max_curvature(params.B, params.T_F)
     c_impossible = IMPOSSIBLE_CURVATURE_FACTOR * c_max
-    impossible = computed_once((params.sensor_axle > 0.5) & speed_ok & (
+    # On either axle, a wheel that reads nothing while the other moves so fast that turning about the still wheel
+    # would be a lateral acceleration v omega = |AD dD| / (T dt^2) beyond MAX_LATERAL_ACCEL has stopped counting.
+    # (Only a dead wheel: a simulator's turn may well be beyond what tyres can do, a burst never reads zero.)
+    track = jnp.where(params.sensor_axle > 0.5, params.T_F, params.T_R)
+    ad = jnp.abs(0.5 * (d_left + d_right))
+    dead_left = (d_left == 0.0) & (d_right != 0.0)
+    one_dead = dead_left | ((d_right == 0.0) & (d_left != 0.0))
+    dead_at_speed = one_dead & ((jnp.abs(dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * step_dt * step_dt)
+    impossible = computed_once(speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
-        | (jnp.abs(dD) > c_impossible * jnp.abs(0.5 * (d_left + d_right)) + 3.0 * dpp)))
+        | (jnp.abs(dD) > c_impossible * ad + 3.0 * dpp)))))
     trusting = (g.substituted < GUARD_MAX_SUBSTITUTED) | impossible
     raw_ok = speed_ok & ~turn_bad & ~impossible
     blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
+    # An impossible turn with one wheel reading nothing: that wheel stopped counting (the other may well be
+    # accelerating away from its rate).
+    blame_left = jnp.where(impossible & one_dead, dead_left, blame_left)
     both = computed_once(left_fast & right_fast)
     # Flags read by every field of the state: computed once (packed.computed_once).
     fix = computed_once(counts_ok & ~raw_ok & trusting)
@@ -200,9 +215,12 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept)],
                      axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
-    # The turn substituted for an impossible sample is a guess within c_max of the travel: its uncertainty (m of dD).
-    dD_sigma = jnp.where(fix & impossible, c_max * jnp.abs(0.5 * (d_left + d_right)), 0.0)
-    return d_left, d_right, raw_ok & ~fired, speed_ok & ~impossible, kept, dD_sigma, new
+    # The turn substituted for an impossible sample is a guess within c_max of the travel (and within the lateral
+    # acceleration bound): its uncertainty (m of dD).
+    ad_kept = jnp.abs(0.5 * (d_left + d_right))
+    dD_sigma = jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, MAX_LATERAL_ACCEL * track * step_dt * step_dt
+                                                       / jnp.maximum(ad_kept, 1e-3)), 0.0)
+    return d_left, d_right, raw_ok & ~fired, speed_ok, kept, dD_sigma, new
 
 
 VERNIER_SAMPLES = 5.0

@@ -463,10 +463,13 @@ def test_a_long_disturbance_that_turns_the_field_step_by_step_does_not_restart_t
     assert err.max() < 8.0, err.max()
 
 
-def _stuck_rmse_after_the_fault(scenario):
-    """Default-mode heading RMSE (deg) from the fault on, of a 300-s drive of seed 101 with the outside bench's left
-    sensor stuck for 5 s and of the same drive clean."""
-    clean = sc.make_drive(scenario, "baseline", 101, duration_s=300.0)
+def _stuck_rmse_after_the_fault(scenario, axle):
+    """Default-mode heading RMSE (deg) from the fault on, of a 300-s drive of seed 101 (its vehicle with wheel sensors
+    on ``axle``) with the outside bench's left sensor stuck for 5 s and of the same drive clean."""
+    vehicle = sc.vehicle(101)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sc, "vehicle", lambda seed: dict(vehicle, sensor_axle=axle))
+        clean = sc.make_drive(scenario, "baseline", 101, duration_s=300.0)
     stuck = copy.deepcopy(clean)
     outside_matrix._stuck_wheel(stuck)
     t = np.asarray(stuck.columns["time_s"])
@@ -475,16 +478,19 @@ def _stuck_rmse_after_the_fault(scenario):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scenario", ["highway", "parking"])
-def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, monkeypatch):
-    """plausibility.impossible on a whole drive.  Without the check (the factor made unreachable) the guard believed
-    the stuck wheel after GUARD_MAX_SUBSTITUTED samples and the wheel heading spun by 2/T rad per metre (measured:
-    highway 32.5 deg, parking 25.6 deg RMSE from the fault on); with it 0.76 and 0.79 deg against the clean drive's
-    0.45 and 0.49 (the substituted turn's variance hands the heading to the compass for the fault)."""
-    with_check = _stuck_rmse_after_the_fault(scenario)
+@pytest.mark.parametrize("scenario, axle", [("highway", "front"), ("parking", "front"), ("urban", "rear")])
+def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, axle, monkeypatch):
+    """plausibility.impossible on a whole drive.  Without the checks (the curvature factor and the lateral
+    acceleration made unreachable) the guard believed the stuck wheel after GUARD_MAX_SUBSTITUTED samples and the
+    wheel heading spun by 2/T rad per metre (measured: highway 32.5 deg, parking 25.6 deg RMSE from the fault on;
+    urban with rear-axle sensors 50.8 deg); with them 0.73, 0.79 and 0.42 deg against the clean drive's 0.45, 0.49
+    and 0.36 (the substituted turn's variance hands the heading to the compass for the fault).  Rear-axle sensors are
+    caught by the lateral acceleration alone, from a wheel speed of ~6 m/s: at parking speeds they are not."""
+    with_check = _stuck_rmse_after_the_fault(scenario, axle)
     monkeypatch.setattr(plausibility, "IMPOSSIBLE_CURVATURE_FACTOR", 1e9)
+    monkeypatch.setattr(plausibility, "MAX_LATERAL_ACCEL", 1e9)
     jax.clear_caches()
-    without = _stuck_rmse_after_the_fault(scenario)
+    without = _stuck_rmse_after_the_fault(scenario, axle)
     jax.clear_caches()
     assert with_check["clean"] == pytest.approx(without["clean"], abs=1e-9)  # nothing changes on the clean drive
     assert with_check["stuck"] < with_check["clean"] + 0.6 and without["stuck"] > 10.0, (with_check, without)
