@@ -22,6 +22,7 @@ time_jitter         the logged time stamps off by up to +-20 ms at random (a log
 dropped_rows        3 % of the rows lost at random and one 3-s gap (a logger that drops samples)
 counter_reset       both pulse counters restart from 0 halfway through the drive (an ECU reset)
 stuck_wheel         the left counter stops for 5 s at 40 % of the drive, then counts on (the pulses are lost)
+stuck_wheel_long    the same for 10 s at 60 % of the drive (stop 32)
 ==================  ===================================================================================
 
 The last four were added at stop 31, after the default's constants were frozen, as judges only.
@@ -161,7 +162,8 @@ DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compas
                 "log_5hz": lambda drive: _decimate(drive, 2), "log_2hz": lambda drive: _decimate(drive, 5),
                 "log_1hz": lambda drive: _decimate(drive, 10),
                 "time_jitter": _time_jitter, "dropped_rows": _dropped_rows, "counter_reset": _counter_reset,
-                "stuck_wheel": _stuck_wheel}
+                "stuck_wheel": _stuck_wheel,
+                "stuck_wheel_long": lambda drive: _stuck_wheel(drive, at=0.6, duration_s=10.0)}
 
 
 def main():

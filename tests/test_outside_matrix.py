@@ -73,6 +73,20 @@ def test_the_bench_runs(capsys, monkeypatch):
     assert "nan" not in out.lower()
 
 
+def test_the_bench_draws_rear_axle_vehicles_when_asked(monkeypatch, capsys):
+    """--axle rear: the same seeds' vehicles with rear-axle sensors (the vehicle draw is restored afterwards)."""
+    seen = []
+    monkeypatch.setattr(sys, "argv", ["bench_outside_matrix.py", "--seeds", "101", "--duration", "60", "--axle", "rear",
+                                      "--only", "none"])
+    # The drives as the bench builds them, not run: one row each.
+    monkeypatch.setattr(bench.ev, "evaluate", lambda drives, modes: seen.extend(drives) or [
+        dict(name=d.name, rmse={m: 1.0 for m in modes}, ratio=1.0) for d in drives])
+    monkeypatch.setattr(sc, "vehicle", sc.vehicle)  # undone after the test, whatever main() sets
+    bench.main()
+    assert len(seen) == len(sc.SCENARIOS) and all(d.params["sensor_axle"] == "rear" for d in seen)
+    assert "rear-axle wheel sensors" in capsys.readouterr().out
+
+
 def test_a_slower_log_keeps_every_nth_sample_of_log_and_truth(drive):
     changed = _disturbed(drive, "log_2hz")
     for table, before, keys in ((changed.columns, drive.columns, ("time_s", "left_pulses", "compass_x")),
@@ -91,10 +105,12 @@ def test_spurious_pulses_add_single_pulses_at_the_asked_rate(drive):
     assert 0 < steps.sum() <= 4.0 * 2.0 * minutes + 3  # 2 per minute (Poisson)
 
 
-def test_stuck_wheel_freezes_the_left_counter_for_5_s_and_loses_those_pulses(drive):
-    changed = _disturbed(drive, "stuck_wheel")
+@pytest.mark.parametrize("name, at, seconds", [("stuck_wheel", 0.4, 5.0), ("stuck_wheel_long", 0.6, 10.0)])
+def test_stuck_wheel_freezes_the_left_counter_for_a_while_and_loses_those_pulses(drive, name, at, seconds):
+    changed = _disturbed(drive, name)
     t = np.asarray(drive.columns["time_s"])
-    stuck = (t >= t[0] + 0.4 * (t[-1] - t[0])) & (t < t[0] + 0.4 * (t[-1] - t[0]) + 5.0)
+    stuck = (t >= t[0] + at * (t[-1] - t[0])) & (t < t[0] + at * (t[-1] - t[0]) + seconds)
+    assert np.count_nonzero(stuck) == pytest.approx(10 * seconds, abs=1)
     left = sc.unwrap_counter(changed.columns["left_pulses"])
     original = sc.unwrap_counter(drive.columns["left_pulses"])
     assert np.all(np.diff(left)[stuck[1:]] == 0) and np.any(np.diff(original)[stuck[1:]] != 0)
