@@ -303,7 +303,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
-    restart = start(params).fields()._replace(delta=wrap(delta_meas), level=level, wander=wander)
+    restart = start(params).fields()._replace(delta=wrap(delta_meas), level=level, wander=wander,
+                                              since_drift=f.since_drift)
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, params.filter_reacquire_lost_m)
     # A lost filter counts its metres from when it became lost, not from when the compass was first rejected: a long
     # disturbance that turns the field step by step past filter_reacquire_large_deg is not a wrong heading

@@ -12,8 +12,9 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
   wheel moves dD by the whole burst;
 * geometry (front-axle sensors): a dD beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum
   of dD/AD, per sample or over GUARD_WINDOW_M of the raw counts, is no vehicle's turn (a sensor that stopped
-  counting: dD/AD = 2).  Such samples are replaced by the other wheel's travel with no turn for as long as
-  they last, and ``dD_sigma`` hands the filter that turn's uncertainty.
+  counting: dD/AD = 2); on either axle, a wheel that reads nothing while turning about it would be a lateral
+  acceleration beyond MAX_LATERAL_ACCEL.  Such samples are replaced by the other wheel's travel with no turn for
+  as long as they last, and ``dD_sigma`` hands the filter that turn's uncertainty.
 
 Which wheel is at fault: the one whose increment departs more from its own recent rate.  The
 whole number of pulses by which it departs from the other wheel's increment plus (or minus) the
@@ -127,9 +128,10 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
     raw_ok: the counts passed both checks as they were; speed_ok: they passed the speed check (a
-    wheel beyond max_speed is a counter fault, not motion: the FMUs discard such a sample); kept: the sample's motion is used (raw
-    or substituted); dD_sigma: the uncertainty (m of dD) of a turn substituted for an ``impossible`` sample, else
-    0.  ``counts_ok`` is False for non-finite counts and the first sample (no motion).
+    wheel beyond max_speed is a counter fault, not motion: the FMUs discard such a sample); kept: the
+    sample's motion is used (raw or substituted); dD_sigma: the uncertainty (m of dD) of a turn
+    substituted for an ``impossible`` sample, else 0.  ``counts_ok`` is False for non-finite counts and
+    the first sample (no motion).
     """
     g = gs.fields()
     dpp = jnp.maximum(dpp_left, dpp_right)
@@ -157,7 +159,8 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     ad = jnp.abs(0.5 * (d_left + d_right))
     dead_left = (d_left == 0.0) & (d_right != 0.0)
     one_dead = dead_left | ((d_right == 0.0) & (d_left != 0.0))
-    dead_at_speed = one_dead & ((jnp.abs(dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * step_dt * step_dt)
+    lateral_limit = MAX_LATERAL_ACCEL * track * step_dt * step_dt  # the largest |AD dD| (m^2) of a sample
+    dead_at_speed = one_dead & ((jnp.abs(dD) - 3.0 * dpp) * ad > lateral_limit)
     impossible = computed_once(speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
         | (jnp.abs(dD) > c_impossible * ad + 3.0 * dpp)))))
@@ -218,8 +221,8 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # The turn substituted for an impossible sample is a guess within c_max of the travel (and within the lateral
     # acceleration bound): its uncertainty (m of dD).
     ad_kept = jnp.abs(0.5 * (d_left + d_right))
-    dD_sigma = jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, MAX_LATERAL_ACCEL * track * step_dt * step_dt
-                                                       / jnp.maximum(ad_kept, 1e-3)), 0.0)
+    dD_sigma = jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, lateral_limit / jnp.maximum(ad_kept, 1e-3)),
+                         0.0)
     return d_left, d_right, raw_ok & ~fired, speed_ok, kept, dD_sigma, new
 
 

@@ -157,3 +157,18 @@ def test_the_rate_filter_counts_the_metres_since_a_large_drift_through_its_own_r
                                   np.delete(np.asarray(restarted.vector), of.OffsetFields._fields.index("since_drift")))
     drifting = of.count_since_large_drift(params, _rate_filter(params, 2e-3, 2e-4, 0.0), previous, 2.5)
     assert float(drifting.since_drift) == 0.0
+
+
+def test_a_restart_from_the_compass_keeps_the_follow_hold():
+    """A re-acquisition restarts F-DELTA from the compass (FIG. 8B) but not the wheels' drift history: the steady
+    filter still takes the rate filter's state for filter_follow_hold_m after the drift the calibration captured.
+    (Reset to NEVER_DRIFTED_M, highway/mismatch_2.5/202 kept the heading 4 deg behind the rate filter, which was
+    within 0.6 deg, for 10 minutes.)"""
+    params = jm.make_params()
+    steady_params = of.steady_params(params)
+    f = _steady(params, 0.0, 300.0).fields()
+    rejected_long = of.OffsetState.pack(f._replace(rejected_m=jnp.asarray(1e5), disturbance=jnp.asarray(deg(30.0))))
+    new, _ = of.update(steady_params, rejected_long, jnp.asarray(deg(30.0)), jnp.asarray(deg(3.0)), 1.0, 1.0,
+                       jnp.asarray(True), jnp.asarray(False), 0.0)
+    assert np.degrees(float(new.delta)) == pytest.approx(30.0)  # restarted from the compass
+    assert float(new.since_drift) == 300.0

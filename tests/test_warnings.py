@@ -1,7 +1,7 @@
 """Issue 11: warnings where the result is probably wrong, on stderr (estimate) and in the identify
 report: no usable compass, an uncalibrated compass, a counter_modulus that does not match the
-counters, a counter that stopped counting, odometer samples dropped by the plausibility checks (with their times); identify keeps
-a finished fit when a plot fails."""
+counters, a counter that stopped counting, odometer samples dropped by the plausibility checks (with their
+times); identify keeps a finished fit when a plot fails."""
 
 import json
 
