@@ -173,13 +173,11 @@ def main():
     ap.add_argument("--only", help="comma-separated disturbances to run (default: all)")
     ap.add_argument("--axle", choices=("front", "rear"), default="front", help="the vehicles' wheel sensor axle")
     args = ap.parse_args()
-    if args.axle != "front":
-        vehicle = sc.vehicle
-        sc.vehicle = lambda seed: dict(vehicle(seed), sensor_axle=args.axle)
     chosen = DISTURBANCES if not args.only else {k: DISTURBANCES[k] for k in args.only.split(",")}
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
-    base = [sc.make_drive(scenario, "baseline", seed, args.duration) for seed in seeds for scenario in sc.SCENARIOS]
+    base = [sc.make_drive(scenario, "baseline", seed, args.duration, sensor_axle=args.axle)
+            for seed in seeds for scenario in sc.SCENARIOS]
     print(f"baseline drives of seeds {seeds} ({len(base)} drives, {args.duration:g} s, {args.axle}-axle wheel "
           f"sensors), heading RMSE after the "
           f"first minute (deg); ratio = default / min(odometer, compass)\n")

@@ -168,12 +168,12 @@ def _stopped_counter_warnings(name, drive, params) -> list[str]:
     STOPPED_OTHER_PULSES per sample: a wheel sensor that stopped counting (no wheel of a car stands still while
     the other rolls; plausibility.impossible replaces such samples where it can tell them from a turn)."""
     out = []
-    modulus = float(params.counter_modulus)
+    from .drive_log import counter_increments
+
     t = np.asarray(drive.inputs.time_s, dtype=np.float64)
-    inc = {}
-    for side in ("left", "right"):
-        d = np.diff(np.asarray(getattr(drive.inputs, f"{side}_pulses"), dtype=np.float64))
-        inc[side] = d - modulus * np.round(d / modulus)  # across a wrap
+    # inc[side][i]: from sample i to i + 1
+    inc = {side: counter_increments(getattr(drive.inputs, f"{side}_pulses"), float(params.counter_modulus))[1:]
+           for side in ("left", "right")}
     for side, other in (("left", "right"), ("right", "left")):
         stopped = (inc[side] == 0.0) & (np.abs(inc[other]) >= STOPPED_OTHER_PULSES)
         edges = np.flatnonzero(np.diff(np.concatenate([[0], stopped.astype(np.int8), [0]])))

@@ -62,6 +62,15 @@ def wrap_rad(angle):
     return np.where(wrapped <= -np.pi, wrapped + 2.0 * np.pi, wrapped)
 
 
+def counter_increments(counts, modulus):
+    """Per-sample increments of cumulative pulse counters (..., N) along the last axis, a wrap at ``modulus``
+    decoded as the shortest step (numpy twin of jaxmodel.model._decode_counter); the first sample's is 0, a
+    non-finite count gives a non-finite increment."""
+    counts = np.asarray(counts, dtype=np.float64)
+    d = np.diff(counts, axis=-1, prepend=counts[..., :1])
+    return d - modulus * np.round(d / modulus)
+
+
 def wrap_deg(angle):
     """Wrap degrees to (-180, 180]; NaN stays NaN."""
     angle = np.asarray(angle, dtype=np.float64)

@@ -381,11 +381,12 @@ def residuals(e, w, align: bool, lag: int = 0, prev=None, sample_weight=None):
 
 def travelled_distance(inputs, params) -> np.ndarray:
     """Cumulative |AD| (m) per drive from the pulse counters (counter wrap decoded), numpy (batch, N)."""
+    from .drive_log import counter_increments
+
     mod = float(params.counter_modulus)
 
     def inc(x):
-        d = np.diff(np.asarray(x, dtype=np.float64), axis=-1, prepend=np.asarray(x, dtype=np.float64)[..., :1])
-        d = d - mod * np.round(d / mod)
+        d = counter_increments(x, mod)
         return np.where(np.isfinite(d), d, 0.0)
 
     ad = 0.5 * (inc(inputs.left_pulses) * float(params.dpp_left) + inc(inputs.right_pulses) * float(params.dpp_right))

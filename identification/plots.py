@@ -67,19 +67,16 @@ def _empirical_track(ev, drives, params, n_train: int, bins, half_window_m: floa
     not cancel driving forwards."""
     from jaxmodel.track import effective_track
 
+    from .drive_log import counter_increments
+
     num, den, c_all = [], [], []
     t_f = float(params.T_F)
     for b in range(n_train):
         inp = drives[b].inputs
         n = len(np.asarray(inp.time_s))
         mod = float(params.counter_modulus)
-
-        def inc(x):
-            d = np.diff(np.asarray(x, dtype=np.float64), prepend=float(np.asarray(x)[0]))
-            return d - mod * np.round(d / mod)
-
-        dl = inc(inp.left_pulses) * float(params.dpp_left)
-        dr = inc(inp.right_pulses) * float(params.dpp_right)
+        dl = counter_increments(inp.left_pulses, mod) * float(params.dpp_left)
+        dr = counter_increments(inp.right_pulses, mod) * float(params.dpp_right)
         dD = dl - dr
         dist = np.cumsum(np.abs(0.5 * (dl + dr)))
         ref = ev["ref"][b][:n]

@@ -164,13 +164,14 @@ def _glitch(rng, left, right, t, speed):
 
 
 def make_drive(scenario: str, condition: str, seed: int, duration_s: float = 900.0,
-               fixes_sigma: float | None = 4.0) -> ScenarioDrive:
-    """One drive of the matrix (see the module docstring); deterministic in (scenario, condition, seed)."""
+               fixes_sigma: float | None = 4.0, sensor_axle: str = "front") -> ScenarioDrive:
+    """One drive of the matrix (see the module docstring); deterministic in (scenario, condition, seed).
+    ``sensor_axle``: the axle of the vehicle's wheel sensors ("rear": no Ackerman geometry; the outside bench)."""
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}")
     if condition not in CONDITIONS:
         raise ValueError(f"unknown condition {condition!r}; expected one of {', '.join(CONDITIONS)}")
-    p = vehicle(seed)
+    p = dict(vehicle(seed), sensor_axle=sensor_axle)
     mismatch = float(condition.split("_")[1]) / 100.0 if condition.startswith("mismatch_") else 0.0
     columns, truth = simulate(scenario, duration_s, seed, params=p, fixes_sigma=fixes_sigma,
                               dpp_mismatch=mismatch, anomalies=False)

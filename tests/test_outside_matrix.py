@@ -74,14 +74,13 @@ def test_the_bench_runs(capsys, monkeypatch):
 
 
 def test_the_bench_draws_rear_axle_vehicles_when_asked(monkeypatch, capsys):
-    """--axle rear: the same seeds' vehicles with rear-axle sensors (the vehicle draw is restored afterwards)."""
+    """--axle rear: the same seeds' vehicles with rear-axle sensors."""
     seen = []
     monkeypatch.setattr(sys, "argv", ["bench_outside_matrix.py", "--seeds", "101", "--duration", "60", "--axle", "rear",
                                       "--only", "none"])
     # The drives as the bench builds them, not run: one row each.
     monkeypatch.setattr(bench.ev, "evaluate", lambda drives, modes: seen.extend(drives) or [
         dict(name=d.name, rmse={m: 1.0 for m in modes}, ratio=1.0) for d in drives])
-    monkeypatch.setattr(sc, "vehicle", sc.vehicle)  # undone after the test, whatever main() sets
     bench.main()
     assert len(seen) == len(sc.SCENARIOS) and all(d.params["sensor_axle"] == "rear" for d in seen)
     assert "rear-axle wheel sensors" in capsys.readouterr().out

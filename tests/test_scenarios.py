@@ -466,10 +466,7 @@ def test_a_long_disturbance_that_turns_the_field_step_by_step_does_not_restart_t
 def _stuck_rmse_after_the_fault(scenario, axle):
     """Default-mode heading RMSE (deg) from the fault on, of a 300-s drive of seed 101 (its vehicle with wheel sensors
     on ``axle``) with the outside bench's left sensor stuck for 5 s and of the same drive clean."""
-    vehicle = sc.vehicle(101)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sc, "vehicle", lambda seed: dict(vehicle, sensor_axle=axle))
-        clean = sc.make_drive(scenario, "baseline", 101, duration_s=300.0)
+    clean = sc.make_drive(scenario, "baseline", 101, duration_s=300.0, sensor_axle=axle)
     stuck = copy.deepcopy(clean)
     outside_matrix._stuck_wheel(stuck)
     t = np.asarray(stuck.columns["time_s"])
