@@ -296,16 +296,17 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
+    drift_significant = drifting & (_offset.follow_weight(params, offset) > 0.5)
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                          absolute_ok & ~initializing, drifting, tilt, d_lost)
+                                          absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                               tilt, d_lost)
+                               tilt, d_lost, drift_significant)
     # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.
     steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
                                    hold_on_drift=not _captures_drift(config))

@@ -64,7 +64,8 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   ``heading_reliability``.
 * re-acquisition: a compass rejected for ``filter_reacquire_m`` metres in a row restarts the
   filter from it, as the first compass sample does (FIG. 8B), when the rate filter's rate turns
-  F-DELTA by more than ``filter_reacquire_drift_deg`` over that distance (``drifting``): the
+  F-DELTA by more than ``filter_reacquire_drift_deg`` over that distance (``drifting``) and that rate is
+  significant (beyond ``filter_rate_significance`` sigmas, ``follow_weight``): the
   disagreement is then the wheels' (a rate that ran away under a 2.5 % tyre mismatch before the
   calibration caught it locked the filter out of a clean compass for a whole highway drive,
   105 deg RMSE; 2.7 deg with it).  Without such a drift the compass has an error of its own (a
@@ -240,19 +241,21 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
         since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
 
-def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None):
+def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None, drift_significant=None):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + tilt g + white noise (h = [1, 0, 1, 0, tilt]); ``tilt`` = sin(psi_m) from
     ``tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m).
     ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
-    so the compass is neither hardened against nor kept out beyond filter_reacquire_m.  A filter
+    so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that rate
+    is also significant (``drift_significant``, bool, from ``follow_weight``; default ``drifting``).  A filter
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one).
     """
     f = fs.fields()
     d_lost = d_t if d_lost is None else d_lost
+    drift_significant = drifting if drift_significant is None else drift_significant
     h = [1, 0, 1, 0, tilt]
     x = [f.delta, f.beta, f.c, f.k, f.g]
     nu = wrap(delta_meas - _dot(h, x))
@@ -309,8 +312,11 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # A lost filter counts its metres from when it became lost, not from when the compass was first rejected: a long
     # disturbance that turns the field step by step past filter_reacquire_large_deg is not a wrong heading
     # (highway/long_disturbance/103 restarted 60 deg off on its way out).
+    # The early restart needs a rate the filter is sure of: a compass whose error depends on the heading (a shifted
+    # hard iron) teaches the rate filter a rate of 1-1.5 sigma, and restarting on it put urban/hard_iron_shift/106
+    # 16 deg off for the last 4 minutes.
     reacquire = jnp.where(is_lost, lost_m > lost_after, rejected_m > jnp.where(
-        drifting, params.filter_reacquire_m, params.filter_reacquire_step_m))
+        drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, jnp.where(reacquire, r_, n_), o_)

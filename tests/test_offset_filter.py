@@ -172,3 +172,18 @@ def test_a_restart_from_the_compass_keeps_the_follow_hold():
                        jnp.asarray(True), jnp.asarray(False), 0.0)
     assert np.degrees(float(new.delta)) == pytest.approx(30.0)  # restarted from the compass
     assert float(new.since_drift) == 300.0
+
+
+@pytest.mark.parametrize("significant, restarted", [(True, True), (False, False)])
+def test_an_early_restart_needs_a_significant_drift(significant, restarted):
+    """A compass rejected for 2 km (between filter_reacquire_m and filter_reacquire_step_m), 12 deg off: the filter
+    restarts from it early only when the rate that explains the disagreement is significant.  A shifted hard iron
+    teaches the rate filter a rate of 1-1.5 sigma (urban/hard_iron_shift/106: restarted 16 deg off, 8.63 deg RMSE)."""
+    params = jm.make_params()
+    f = of.init_offset_state(params).fields()
+    rejected = of.OffsetState.pack(f._replace(rejected_m=jnp.asarray(2000.0), disturbance=jnp.asarray(deg(12.0)),
+                                              p00=jnp.asarray(deg(0.5) ** 2)))
+    new, weight = of.update(params, rejected, jnp.asarray(deg(12.0)), jnp.asarray(deg(3.0)), 1.0, 1.0,
+                            jnp.asarray(True), jnp.asarray(True), 0.0, drift_significant=jnp.asarray(significant))
+    assert float(weight) < 0.5  # the sample itself is rejected
+    assert np.degrees(float(new.delta)) == pytest.approx(12.0 if restarted else 0.0, abs=0.5)

@@ -118,6 +118,17 @@ def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
 
 
 @pytest.mark.slow
+def test_a_rate_learned_from_a_shifted_hard_iron_does_not_restart_the_filter_early():
+    """After a hard-iron shift the compass's error turns with the heading (here 15 deg at times), and the rate filter
+    learns from it a rate of 1-1.5 sigma that turns F-DELTA by more than filter_reacquire_drift_deg per km.  An early
+    restart (after filter_reacquire_m) needs that rate to be significant; without it the filter restarted 16 deg off.
+    filter_reacquire_step_m = 1000 m restarts as early on any rejection, as that rate did.  Held-out tuning seed 106
+    (stop 33): 0.97 deg, 8.89 deg restarting early (8.63 deg before the fix)."""
+    drive = sc.make_drive("urban", "hard_iron_shift", 106)
+    _assert_default_beats(drive, "early restart", {"filter_reacquire_step_m": 1000.0}, 5.0, 0.25)
+
+
+@pytest.mark.slow
 def test_a_shifted_hard_iron_is_hardened_against_within_hundreds_of_metres():
     """The stop-26 harden distance (filter_reject_harden_m 699 -> 300 m, chosen on the tuning seeds 101-103): after
     the shift the compass is 5-15 deg off, and with 699 m its soft-gated samples pull F-DELTA.  Measured on
