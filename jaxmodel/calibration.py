@@ -20,7 +20,8 @@ N_L dpp_L = N_R dpp_R and the measured correction ratio is k_s = N_L / N_R.
     change over the stretch (mean compass heading of the last window minus that of the first;
     each mean taken as offsets from the window's first valid sample, so it is wrap-safe).  A
     compass that says the stretch was not straight lowers the intensity (claims 6-9).  A
-    stretch without compass at both ends gets ``cal_no_compass_weight``.
+    stretch without compass at both ends gets ``cal_no_compass_weight`` (1e-3 by default: nothing then tells a
+    straight stretch from a gentle curve, and a curve of 1 km radius biases a 200-m stretch's k_s by 1.5e-3).
   - w_sanity = w_consistent min(1 + ((k_s/mean - 1)/cal_sanity_bound)^2, cal_sanity_boost):
     claim 11 as written, "increasing the intensity ... responsive to determining a low level of
     sanity" of the correction value (the filtered ratio far from what the stretches measure),

@@ -132,7 +132,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("cal_ratio_bound", 0.01, "1", "EP 0619873 claims 2-3: bound on a window's |dD/AD| (current dpp) for the stretch to go on"),
     ParamSpec("cal_stretch_distance_m", 200.0, "m", "EP 0619873 claims 12-13: bounded distance that yields one correction ratio"),
     ParamSpec("cal_compass_tolerance_deg", 1.0, "deg", "EP 0619873 claims 6-9: intensity exp(-0.5 (compass heading change / this)^2)"),
-    ParamSpec("cal_no_compass_weight", 0.25, "1", "EP 0619873 claim 5: intensity of a stretch the compass cannot check"),
+    ParamSpec("cal_no_compass_weight", 0.001, "1", "EP 0619873 claim 5: intensity of a stretch the compass cannot check (without it a gentle curve reads as a tyre mismatch; not 0, so that its logit stays finite when fitted)"),
     ParamSpec("cal_sanity_bound", 0.005, "1", "EP 0619873 claims 10-11: sanity intensity 1/(1 + ((k_s/filtered ratio - 1)/this)^2)"),
     ParamSpec("cal_steady_bound", 0.003, "1", "EP 0619873 claims 2-3 (Config.robust): a window's dD/AD may differ from the previous window's by this for the stretch to go on"),
     ParamSpec("cal_sanity_boost", 20.0, "1", "EP 0619873 claim 11: at most this much more intensity when consistent stretches disagree with the filtered ratio"),

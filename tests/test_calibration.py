@@ -105,7 +105,7 @@ def test_compass_lowers_the_intensity():
     assert abs(float(cs.ratio[-1]) - 1.0) < 1e-9
     no_compass = inputs._replace(compass_x=jnp.full_like(inputs.compass_x, jnp.nan))
     cs0 = _cal_states(jm.make_params(cal_no_compass_weight=0.0), no_compass, jm.Config())
-    cs1 = _cal_states(jm.make_params(), no_compass, jm.Config())
+    cs1 = _cal_states(jm.make_params(cal_no_compass_weight=0.25), no_compass, jm.Config())
     assert float(cs0.ratio[-1]) == 1.0
     assert float(cs1.ratio[-1]) > 1.001
 
