@@ -296,7 +296,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
-    drift_significant = drifting & (_offset.follow_weight(params, offset) > 0.5)
+    drift_significant = _offset.drifting_significantly(params, offset)
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,

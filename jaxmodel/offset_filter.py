@@ -248,7 +248,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     ``tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m).
     ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
     so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that rate
-    is also significant (``drift_significant``, bool, from ``follow_weight``; default ``drifting``).  A filter
+    is also significant (``drift_significant``, bool, from ``drifting_significantly``; default ``drifting``).  A filter
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one).
@@ -344,6 +344,12 @@ def drifting(params, rate_filter):
     return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
 
 
+def drifting_significantly(params, rate_filter):
+    """``drifting`` with a rate the filter is sure of (``significant``, bool): what lets a rejected compass restart
+    the filter after filter_reacquire_m (``update``'s ``drift_significant``)."""
+    return drifting(params, rate_filter) & significant(params, rate_filter)
+
+
 LOST_STEADY_M = 10.0
 """Distance (m) over which the steadiness of a lost filter's disagreement is judged."""
 LOST_MIN_SPEED = 2.0
@@ -425,13 +431,18 @@ def follow_weight(params, rate_filter):
     return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
 
 
+def significant(params, rate_filter):
+    """Whether the rate filter's rate is beyond filter_rate_significance of its sigmas (follow_weight above 1/2)."""
+    return follow_weight(params, rate_filter) > 0.5
+
+
 def large_drift(params, rate_filter):
     """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
     filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
     grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
     the window in which recalibrations restart the steady filter's follow hold (``count_since_large_drift``), and,
     with the calibration off, the hold itself (``follow``)."""
-    return (follow_weight(params, rate_filter) > 0.5) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
+    return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
 
 
 def restart_hold(steady, restart):
