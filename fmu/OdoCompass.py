@@ -89,6 +89,8 @@ class OdoCompass(Fmi2Slave):
         self._t_last = -float("inf")
         self._strikes = 0  # consecutive samples refused for implausible counters
         self._discarded = 0
+        stopped = self._manifest["stopped_counter"]
+        self._stopped = self._support.StoppedCounterWatch(stopped["min_s"], stopped["other_pulses"])
         self._timing: dict[str, float] = {"instantiated": time.perf_counter()}
         with _LOAD_LOCK:
             _LIVE.add(self)
@@ -432,6 +434,7 @@ class OdoCompass(Fmi2Slave):
             self._s = s
             self._t_last = self._t_start
             self._strikes = 0
+            self._stopped.restore(None)
             if s is not None:
                 cx, cy = self._x[self._i_cx], self._x[self._i_cy]
                 if not (cx - cx == 0.0 and cy - cy == 0.0):
@@ -509,6 +512,9 @@ class OdoCompass(Fmi2Slave):
             self._discarded += 1
             self._log(f"{problem} at t={t_sample!r} s: passed to the estimator, which skips what is unusable "
                       "(discard_bad_samples=false)", Fmi2Status.warning, "logBadInput")
+        if self._s[self._i_started] > 0.5:
+            for level, text in self._stopped.update(self._t_last, t_sample, self._increments()):
+                self._log(text, Fmi2Status.warning if level == "warning" else Fmi2Status.ok, "logBadInput")
         self._s = s_new
         self._o = o
         self._t_last = t_sample
@@ -525,14 +531,17 @@ class OdoCompass(Fmi2Slave):
                   f"(discarded_samples={self._discarded})", Fmi2Status.warning, category)
         return True
 
-    def _counter_message(self, t_sample):
+    def _increments(self):
+        """(left, right) pulses of the sample in ``_x`` since the state's last counts, wraps decoded (as jaxmodel)."""
         mod = float(self._params.get("counter_modulus", 65536.0))
-        parts = []
-        for name, slot, i_last in (("left", self._i_left, self._i_last_left),
-                                   ("right", self._i_right, self._i_last_right)):
+        out = []
+        for slot, i_last in ((self._i_left, self._i_last_left), (self._i_right, self._i_last_right)):
             d = self._x[slot] - self._s[i_last]
-            d -= mod * round(d / mod)
-            parts.append(f"{name} {d:+.0f}")
+            out.append(d - mod * round(d / mod) if d - d == 0.0 else _NAN)
+        return out
+
+    def _counter_message(self, t_sample):
+        parts = [f"{name} {d:+.0f}" for name, d in zip(("left", "right"), self._increments())]
         return (f"implausible pulse counter jump ({', '.join(parts)} counts in {t_sample - self._t_last:.6g} s, "
                 f"beyond max_speed={self._params.get('max_speed')} m/s)")
 
@@ -554,6 +563,7 @@ class OdoCompass(Fmi2Slave):
             "x": sup.floats_to_text(self._x),
             "strikes": self._strikes,
             "discarded": self._discarded,
+            "stopped": self._stopped.to_json(),
             "refused": self._refused,
         }
 
@@ -578,6 +588,7 @@ class OdoCompass(Fmi2Slave):
             self._x = sup.text_to_floats(state["x"])
             self._strikes = int(state["strikes"])
             self._discarded = int(state["discarded"])
+            self._stopped.restore(state.get("stopped"))
             self._phase = state["phase"]
             self._o_stale = False
             self._refused = state.get("refused")

@@ -139,6 +139,59 @@ def text_to_floats(values: Iterable[str]) -> list[float]:
 
 
 # ----------------------------------------------------------------------------------------------
+# a wheel sensor that stopped counting
+# ----------------------------------------------------------------------------------------------
+class StoppedCounterWatch:
+    """Reports a wheel pulse counter that stopped counting while the other counted on (a sensor fault), from the
+    samples an FMU steps.  The estimator substitutes such samples where it can tell them from a turn and says
+    nothing; ``estimate`` warns of it from the log, and an FMU's host learns it from this.
+
+    A run starts at the last sample before the first increment of 0 on one side with at least ``other_pulses``
+    on the other; once it lasts ``min_s`` it is reported once (a warning), and its end once (an information).
+    The thresholds are the manifest's ``stopped_counter`` (jaxmodel.plausibility.STOPPED_MIN_S,
+    STOPPED_OTHER_PULSES); odocompass_fmi2.c's ``watch_counters`` is the native FMU's twin."""
+
+    SIDES = ("left", "right")
+
+    def __init__(self, min_s: float, other_pulses: float):
+        self.min_s, self.other_pulses = float(min_s), float(other_pulses)
+        self.since: list[float | None] = [None, None]  # time (s) of the sample before each side's run
+        self.reported = [False, False]
+
+    def update(self, t_previous: float, t: float, increments) -> list[tuple[str, str]]:
+        """One stepped sample at ``t`` (s) after one at ``t_previous``, with the (left, right) counter increments
+        (pulses, wraps decoded; NaN if unknown).  Returns the messages to log as (level, text), level "warning"
+        or "ok"."""
+        out = []
+        for i, side in enumerate(self.SIDES):
+            other = self.SIDES[1 - i]
+            if increments[i] == 0.0 and abs(increments[1 - i]) >= self.other_pulses:
+                if self.since[i] is None:
+                    self.since[i] = t_previous
+                if not self.reported[i] and t - self.since[i] >= self.min_s:
+                    self.reported[i] = True
+                    out.append(("warning", f"{side}_pulses stopped counting while {other}_pulses counted on, since "
+                                           f"t={self.since[i]!r} s: a wheel sensor fault; the estimator replaces its "
+                                           "samples by the other wheel's travel where it can tell them from a turn"))
+                continue
+            if self.reported[i]:
+                out.append(("ok", f"{side}_pulses no longer stopped at t={t!r} s (stopped since t={self.since[i]!r} "
+                                  f"s, {t_previous - self.since[i]:.6g} s)"))
+            self.since[i], self.reported[i] = None, False
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """The watch's state for an FMU state (times as float.hex)."""
+        return {"since": [None if v is None else float_to_text(v) for v in self.since], "reported": list(self.reported)}
+
+    def restore(self, data: Mapping[str, Any] | None) -> None:
+        """The state of ``to_json`` (None: nothing running, as in a state saved before the watch existed)."""
+        data = data or {}
+        self.since = [None if v is None else text_to_float(v) for v in data.get("since", [None, None])]
+        self.reported = [bool(v) for v in data.get("reported", [False, False])]
+
+
+# ----------------------------------------------------------------------------------------------
 # pythonfmu 0.7.0's exit-time abort (issue 12)
 # ----------------------------------------------------------------------------------------------
 _EXIT_GUARDED: set[str] = set()

@@ -205,8 +205,11 @@ def manifest(values: Mapping[str, Any], bounds: Mapping[str, tuple[float | None,
         outputs.append(dict(name=name, field=field, slot=slot, type=kind, unit=unit if kind == "Real" else None,
                             display_unit=display, description=desc))
     config = [dict(name=n, type=t, start=s, description=d) for n, t, s, d in CONFIG_META]
+    # what the FMUs report as a wheel sensor that stopped counting (fmi_support.StoppedCounterWatch)
+    stopped = dict(min_s=float(jaxmodel.plausibility.STOPPED_MIN_S),
+                   other_pulses=float(jaxmodel.plausibility.STOPPED_OTHER_PULSES))
     return dict(format="odocompass-fmu-manifest/2", model="OdoCompass", sample_fields=fields, inputs=inputs,
-                outputs=outputs, parameters=params, config=config)
+                outputs=outputs, parameters=params, config=config, stopped_counter=stopped)
 
 
 def variables(m: Mapping[str, Any]) -> list[dict[str, Any]]:

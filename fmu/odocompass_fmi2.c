@@ -279,6 +279,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp)
     c->d.phase = PH_STEPPING;
     c->d.t_last = c->d.t_start;
     c->d.strikes = 0;
+    memset(c->d.stop_running, 0, sizeof c->d.stop_running);
+    memset(c->d.stop_reported, 0, sizeof c->d.stop_reported);
     if (!(isfinite(c->d.x[ODC_X_CX]) && isfinite(c->d.x[ODC_X_CY])))
         odc_log(c, fmi2Warning, "logBadInput", "initial sample: non-finite compass reading (compass_x=%g, "
                 "compass_y=%g); the estimator skips it", c->d.x[ODC_X_CX], c->d.x[ODC_X_CY]);
@@ -485,6 +487,44 @@ static void counter_message(odc_inst *c, char *buf, size_t n, double t_sample)
              dl, dr, t_sample - c->d.t_last, c->d.p[ODC_P_MAX_SPEED]);
 }
 
+/* A wheel counter that stopped counting while the other counted on (a sensor fault): reported once it lasts
+ * ODC_STOPPED_MIN_S (a warning), and its end (information).  The twin of fmi_support.StoppedCounterWatch (the
+ * pythonfmu FMU); the thresholds are jaxmodel.plausibility's, generated into odocompass_model.h.  Called for a
+ * stepped sample before t_last moves on; s is the state before the sample.  Returns status, or fmi2Warning. */
+static fmi2Status watch_counters(odc_inst *c, const double *s, double t_sample, fmi2Status status)
+{
+    static const char *const side[2] = {"left", "right"};
+    odc_dyn *d = &c->d;
+    const double mod = d->p[ODC_P_COUNTER_MODULUS];
+    double inc[2];
+    int i;
+    if (!(s[ODC_S_STARTED] > 0.5)) return status;
+    inc[0] = d->x[ODC_X_LEFT] - s[ODC_S_LAST_LEFT];
+    inc[1] = d->x[ODC_X_RIGHT] - s[ODC_S_LAST_RIGHT];
+    for (i = 0; i < 2; i++) inc[i] -= mod * nearbyint(inc[i] / mod);
+    for (i = 0; i < 2; i++) {
+        if (inc[i] == 0.0 && fabs(inc[1 - i]) >= ODC_STOPPED_OTHER_PULSES) {
+            if (!d->stop_running[i]) {
+                d->stop_running[i] = 1;
+                d->stop_since[i] = d->t_last;
+            }
+            if (!d->stop_reported[i] && t_sample - d->stop_since[i] >= ODC_STOPPED_MIN_S) {
+                d->stop_reported[i] = 1;
+                odc_log(c, fmi2Warning, "logBadInput", "%s_pulses stopped counting while %s_pulses counted on, since "
+                        "t=%.17g s: a wheel sensor fault; the estimator replaces its samples by the other wheel's "
+                        "travel where it can tell them from a turn", side[i], side[1 - i], d->stop_since[i]);
+                status = fmi2Warning;
+            }
+            continue;
+        }
+        if (d->stop_reported[i])
+            odc_log(c, fmi2OK, "logBadInput", "%s_pulses no longer stopped at t=%.17g s (stopped since t=%.17g s, "
+                    "%.6g s)", side[i], t_sample, d->stop_since[i], d->t_last - d->stop_since[i]);
+        d->stop_running[i] = d->stop_reported[i] = 0;
+    }
+    return status;
+}
+
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     odc_inst *c = (odc_inst *)comp;
@@ -553,6 +593,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
                 "unusable (discard_bad_samples=false)", problem, t_sample);
         status = fmi2Warning;
     }
+    status = watch_counters(c, s, t_sample, status);
     d->cur = 1 - d->cur;
     memcpy(d->o, o_new, sizeof d->o);
     d->t_last = t_sample;

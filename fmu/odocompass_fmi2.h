@@ -23,6 +23,9 @@ typedef struct {
     double o[ODC_N_OUT];
     int cfg_bool[ODC_N_BOOL];
     char str[ODC_N_STR][ODC_STRLEN];
+    /* a wheel counter that stopped counting (watch_counters): per side, a run under way, reported, its start (s) */
+    int stop_running[2], stop_reported[2];
+    double stop_since[2];
 } odc_dyn;
 
 typedef struct {

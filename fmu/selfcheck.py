@@ -20,6 +20,8 @@ subprocess that never imports ``jaxmodel``, so the FMU must work from its own bu
   there the message has error status, every step answers fmi2Discard and outputs are NaN.
 * ``access``: setting a fixed parameter after initialization or an unknown value reference is
   refused: fmi2Error (native), an error-status message (pythonfmu).
+* ``stopped_counter``: a wheel counter that stops for 2 s while the other counts on is reported once
+  (a logBadInput warning naming it) and its end once; a drive without the fault reports nothing.
 
 Works on both FMUs (``build-fmu`` and ``build-fmu --native``).
 """
@@ -286,6 +288,32 @@ def check_bad_inputs(fmu: str, params=None) -> dict[str, Any]:
     return results
 
 
+def check_stopped_counter(fmu: str, params=None) -> dict[str, Any]:
+    """The left counter stopped for 2 s at 16 m/s while the right counts on (its pulses lost): every sample is
+    stepped, one warning names the left counter once the stop lasts STOPPED_MIN_S, one information its end, and the
+    same drive without the fault logs neither."""
+    d = _drive(200)
+    j, n = 120, 20
+    runs = {}
+    for case in ("clean", "stopped"):
+        drive = dict(d)
+        if case == "stopped":
+            inc = np.diff(d["left_pulses"])
+            inc = (inc + 32768.0) % 65536.0 - 32768.0
+            inc[j - 1:j - 1 + n] = 0.0  # samples j .. j+n-1 count nothing
+            drive["left_pulses"] = (d["left_pulses"][0] + np.concatenate([[0.0], np.cumsum(inc)])) % 65536.0
+        r = _Run(fmu, case, drive, params)
+        r.init()
+        r.run_to(len(d["time_s"]) - 1)
+        runs[case] = [list(m) for m in r.s.messages if "stopped" in m[2]]
+        r.close()
+    stopped = runs["stopped"]
+    return {"messages": stopped + runs["clean"],
+            "warned_once": [m[0] for m in stopped if "left_pulses stopped counting" in m[2]] == ["WARNING"],
+            "end_reported": [m[0] for m in stopped if "left_pulses no longer stopped" in m[2]] == ["OK"],
+            "clean_quiet": not runs["clean"] and not any("right_pulses stopped" in m[2] for m in stopped)}
+
+
 BAD_PARAMETERS = {"P": 1.2, "T_F": -1.0, "B": 0.0, "sensor_axle": "middle", "mode": "bogus"}
 
 
@@ -341,7 +369,8 @@ def check_all(fmu: str, engine: str | None = None) -> dict[str, Any]:
     params = {"engine": engine} if engine else None
     res = {"save_restore": check_save_restore(fmu, params), "reset": check_reset(fmu, params),
            "two_instances": check_two_instances(fmu, params), "bad_inputs": check_bad_inputs(fmu, params),
-           "bad_parameters": check_bad_parameters(fmu), "access": check_access(fmu, params)}
+           "bad_parameters": check_bad_parameters(fmu), "access": check_access(fmu, params),
+           "stopped_counter": check_stopped_counter(fmu, params)}
     s = Slave(fmu, "engine")
     d = _drive(3)
     s.initialize(0.0, params, _sample(d, 0, [n for n in INPUT_NAMES if n in d]))
@@ -381,6 +410,9 @@ def failures(res: Mapping[str, Any]) -> list[str]:
             bad.append(f"access.{case}")
     if not res["access"]["B_unchanged"]:
         bad.append("access.B_unchanged")
+    for key in ("warned_once", "end_reported", "clean_quiet"):
+        if not res["stopped_counter"][key]:
+            bad.append(f"stopped_counter.{key}")
     return bad
 
 

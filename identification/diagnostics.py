@@ -36,10 +36,6 @@ DISAGREE_FRACTION = 0.25
 """... in at least this fraction of the windows counts as persistent."""
 WINDOW_S = 60.0
 MAX_TIMES_SHOWN = 5
-STOPPED_MIN_S = 1.0
-"""A counter that did not change for this long while the other counted on ..."""
-STOPPED_OTHER_PULSES = 3.0
-"""... at least this many pulses per sample (beyond the quantization of a slow inner wheel) stopped counting."""
 
 
 def checked_params(path, label: str = "--params"):
@@ -168,6 +164,8 @@ def _stopped_counter_warnings(name, drive, params) -> list[str]:
     STOPPED_OTHER_PULSES per sample: a wheel sensor that stopped counting (no wheel of a car stands still while
     the other rolls; plausibility.impossible replaces such samples where it can tell them from a turn)."""
     out = []
+    from jaxmodel.plausibility import STOPPED_MIN_S, STOPPED_OTHER_PULSES
+
     from .drive_log import counter_increments
 
     t = np.asarray(drive.inputs.time_s, dtype=np.float64)

@@ -64,6 +64,11 @@ GUARD_HORIZON_S = 10.0
 """Rates learned before a gap in time longer than this (s) predict nothing: across it the course check is
 off and no motion is substituted (a logger that stopped for minutes, a clock that jumped; extrapolated
 over 1e300 s, the recent turn rate put the wheel heading 1e282 rad off)."""
+STOPPED_MIN_S = 1.0
+"""A counter that did not change for this long (s) while the other counted on is reported as a wheel sensor fault
+(``estimate``'s warnings, the FMUs' logs); the guard substitutes such samples where it can tell them from a turn."""
+STOPPED_OTHER_PULSES = 3.0
+"""... while the other counted at least this many pulses per sample (beyond the quantization of a slow inner wheel)."""
 COMMON_MODULI = (256.0, 1000.0, 1024.0, 4096.0, 10000.0, 16384.0, 32768.0, 65536.0, 100000.0)
 """Counter moduli of wheel-pulse counters (8-16 bit, decimal): a jump by one of them is a wrap."""
 _SIGNED_MODULI = tuple(m * sign for m in COMMON_MODULI for sign in (1.0, -1.0))

@@ -13,6 +13,7 @@ import functools
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -336,6 +337,15 @@ def test_lenient_mode_steps_bad_compass_with_a_warning(selfcheck):
     r = selfcheck["results"]["bad_inputs"]["lenient_compass_nan"]
     assert r["stepped"] and r["discarded_samples"] == 1
     assert any(m[0] == "WARNING" and m[1] == "logBadInput" for m in r["messages"])
+
+
+def test_a_wheel_counter_that_stopped_is_logged_once_with_its_end(selfcheck):
+    """A left counter stopped for 2 s at 16 m/s while the right counts on: one logBadInput warning naming it (from
+    the last sample before the stop) once it lasted STOPPED_MIN_S, one information at its end; nothing without it."""
+    r = selfcheck["results"]["stopped_counter"]
+    assert r["warned_once"] and r["end_reported"] and r["clean_quiet"], r["messages"]
+    since = re.search(r"since t=([-+.e0-9]+) s", r["messages"][0][2])
+    assert since and float(since.group(1)) == pytest.approx(11.9) and r["messages"][0][1] == "logBadInput", r["messages"]
 
 
 @pytest.mark.parametrize("key", ["P", "T_F", "B", "sensor_axle", "mode"])

@@ -14,6 +14,7 @@ import functools
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -172,6 +173,13 @@ def test_native_selfcheck_passes(selfcheck):
     for case, r in res["bad_inputs"].items():
         if "status" in r:
             assert r["status"] == "WARNING", case  # skipped: fmi2Warning, the run goes on
+
+
+def test_a_wheel_counter_that_stopped_is_logged_once_with_its_end(selfcheck):
+    r = selfcheck[0]["stopped_counter"]
+    assert r["warned_once"] and r["end_reported"] and r["clean_quiet"], r["messages"]
+    since = re.search(r"since t=([-+.e0-9]+) s", r["messages"][0][2])
+    assert since and float(since.group(1)) == pytest.approx(11.9), r["messages"]
 
 
 @pytest.mark.parametrize("key", ["P", "T_F", "B", "sensor_axle", "mode"])
