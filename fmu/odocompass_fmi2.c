@@ -476,32 +476,39 @@ static fmi2Status refuse(odc_inst *c, const char *category, const char *problem,
     return fmi2Warning;
 }
 
+/* (left, right) pulses of the sample in x since the current state's last counts, wraps decoded as jaxmodel does
+ * (the twin of OdoCompass._increments). */
+static void counter_increments(const odc_dyn *d, double inc[2])
+{
+    const double mod = d->p[ODC_P_COUNTER_MODULUS];
+    const double *s = d->s[d->cur];
+    int i;
+    inc[0] = d->x[ODC_X_LEFT] - s[ODC_S_LAST_LEFT];
+    inc[1] = d->x[ODC_X_RIGHT] - s[ODC_S_LAST_RIGHT];
+    for (i = 0; i < 2; i++) inc[i] -= mod * nearbyint(inc[i] / mod);
+}
+
 static void counter_message(odc_inst *c, char *buf, size_t n, double t_sample)
 {
-    const double mod = c->d.p[ODC_P_COUNTER_MODULUS];
-    const double *s = c->d.s[c->d.cur];
-    double dl = c->d.x[ODC_X_LEFT] - s[ODC_S_LAST_LEFT], dr = c->d.x[ODC_X_RIGHT] - s[ODC_S_LAST_RIGHT];
-    dl -= mod * nearbyint(dl / mod);
-    dr -= mod * nearbyint(dr / mod);
+    double inc[2];
+    counter_increments(&c->d, inc);
     snprintf(buf, n, "implausible pulse counter jump (left %+.0f, right %+.0f counts in %.6g s, beyond max_speed=%g m/s)",
-             dl, dr, t_sample - c->d.t_last, c->d.p[ODC_P_MAX_SPEED]);
+             inc[0], inc[1], t_sample - c->d.t_last, c->d.p[ODC_P_MAX_SPEED]);
 }
 
 /* A wheel counter that stopped counting while the other counted on (a sensor fault): reported once it lasts
  * ODC_STOPPED_MIN_S (a warning), and its end (information).  The twin of fmi_support.StoppedCounterWatch (the
  * pythonfmu FMU); the thresholds are jaxmodel.plausibility's, generated into odocompass_model.h.  Called for a
- * stepped sample before t_last moves on; s is the state before the sample.  Returns status, or fmi2Warning. */
-static fmi2Status watch_counters(odc_inst *c, const double *s, double t_sample, fmi2Status status)
+ * stepped sample before cur and t_last move on (d->s[d->cur] is the state before the sample).  Returns status, or
+ * fmi2Warning. */
+static fmi2Status watch_counters(odc_inst *c, double t_sample, fmi2Status status)
 {
     static const char *const side[2] = {"left", "right"};
     odc_dyn *d = &c->d;
-    const double mod = d->p[ODC_P_COUNTER_MODULUS];
     double inc[2];
     int i;
-    if (!(s[ODC_S_STARTED] > 0.5)) return status;
-    inc[0] = d->x[ODC_X_LEFT] - s[ODC_S_LAST_LEFT];
-    inc[1] = d->x[ODC_X_RIGHT] - s[ODC_S_LAST_RIGHT];
-    for (i = 0; i < 2; i++) inc[i] -= mod * nearbyint(inc[i] / mod);
+    if (!(d->s[d->cur][ODC_S_STARTED] > 0.5)) return status;
+    counter_increments(d, inc);
     for (i = 0; i < 2; i++) {
         if (inc[i] == 0.0 && fabs(inc[1 - i]) >= ODC_STOPPED_OTHER_PULSES) {
             if (!d->stop_running[i]) {
@@ -593,7 +600,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
                 "unusable (discard_bad_samples=false)", problem, t_sample);
         status = fmi2Warning;
     }
-    status = watch_counters(c, s, t_sample, status);
+    status = watch_counters(c, t_sample, status);
     d->cur = 1 - d->cur;
     memcpy(d->o, o_new, sizeof d->o);
     d->t_last = t_sample;
