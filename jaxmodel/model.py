@@ -107,6 +107,10 @@ class State(NamedTuple):
     speed: jnp.ndarray            # m/s
     window_dD: jnp.ndarray        # exponentially windowed sum of dD, m
     window_AD: jnp.ndarray        # exponentially windowed sum of |AD|, m
+    interval_dD: jnp.ndarray      # over the current curvature interval: sum of dD / (1 + a V^2), m
+    interval_signed_dD: jnp.ndarray  # sum of dD signed as the travel, m
+    interval_AD: jnp.ndarray      # sum of |AD|, m
+    interval_turn: jnp.ndarray    # the interval's wheel turn as evaluated at the previous sample, rad
     wheel_heading: jnp.ndarray    # H_W, rad
     compass_heading: jnp.ndarray  # last valid H_C, rad
     f_delta: jnp.ndarray          # F-DELTA, rad
@@ -165,7 +169,7 @@ def init_state(params) -> State:
     one = jnp.ones((), jnp.float64)
     return State(
         started=z, initialized=z, last_time=z, last_left=z, last_right=z, speed=z, window_dD=z, window_AD=z,
-        wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
+        interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z, wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
         delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z,
         field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
@@ -228,23 +232,40 @@ def _odometer(params, state, sample, track_table, robust=False):
     d_t = jnp.abs(AD)
     speed = jnp.where(time_ok, safe_div(d_t, dt), state.speed)
 
-    # Curvature dD/AD over an exponential window of curvature_window_m travelled metres: per
-    # sample at 10 Hz the ratio is mostly pulse quantization (2 cm of 10-200 cm), the window
-    # keeps T_E unbiased while following a parking manoeuvre within a few metres.
+    # The ``curvature`` output (and the refinement of a): dD/AD over an exponential window of curvature_window_m
+    # travelled metres.
+    signed_dD = jnp.where(AD >= 0.0, dD, -dD)
     keep = jnp.exp(-d_t / params.curvature_window_m)
-    window_dD = keep * state.window_dD + jnp.where(AD >= 0.0, dD, -dD)
+    window_dD = keep * state.window_dD + signed_dD
     window_AD = keep * state.window_AD + d_t
     curvature = safe_div(window_dD, window_AD, eps=1e-6)
 
+    # The wheel turn, eq. (8) with eq. (14)'s T_E, evaluated per interval of curvature_window_m travelled metres
+    # from the interval's own dD/AD, as the seed evaluates once per interval (once per second): per sample at
+    # 10 Hz dD/AD is mostly pulse quantization, and pairing each sample's dD with a window that contains its own
+    # quantization over-turns in tight turns by a bias per *sample* (T_E is steep near c_max), while a window
+    # without it lags the turn (under-turns); at 10 Hz on the matrix's vehicles the two happened to cancel, at
+    # 50 Hz or with 4-cm pulses a parking drive's wheel heading went 10-60 deg off (docs/tuning.md, stop 35).
+    # The interval's turn is re-evaluated every sample (``alpha`` is its change), so H_W follows within the
+    # interval and its sum over the interval is dD_I / T_E(dD_I / AD_I).
+    interval_dD = state.interval_dD + _track.velocity_corrected(dD, state.a, speed)
+    interval_signed_dD = state.interval_signed_dD + signed_dD
+    interval_AD = state.interval_AD + d_t
+    interval_curvature = safe_div(interval_signed_dD, interval_AD, eps=1e-9)
     if track_table is None:
-        t_front = _track.effective_track(curvature, params.P, params.B, params.T_F, params.curvature_clip)
+        t_front = _track.effective_track(interval_curvature, params.P, params.B, params.T_F, params.curvature_clip)
     else:
-        t_front = _track.effective_track_lookup(curvature, track_table)
+        t_front = _track.effective_track_lookup(interval_curvature, track_table)
     track = jnp.where(params.sensor_axle > 0.5, t_front, params.T_R)
-    alpha = _track.wheel_heading_change(dD, track, state.a, speed)
+    turn = interval_dD / track
+    alpha = turn - state.interval_turn
+    ended = computed_once(interval_AD >= params.curvature_window_m)
+    interval = dict(interval_dD=interval_dD, interval_signed_dD=interval_signed_dD, interval_AD=interval_AD,
+                    interval_turn=turn)
+    interval = {k: jnp.where(ended, 0.0, v) for k, v in interval.items()}
     return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
                 d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
-                track=track, alpha=alpha, plausible=plausible, kept=kept,
+                interval=interval, track=track, alpha=alpha, plausible=plausible, kept=kept,
                 guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
@@ -300,13 +321,14 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                          absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant)
+                                          absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
+                                          dt=odo["dt"])
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                               tilt, d_lost, drift_significant)
+                               tilt, d_lost, drift_significant, dt=odo["dt"])
     # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.
     steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
                                    hold_on_drift=not _captures_drift(config))
@@ -476,7 +498,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         last_time=jnp.where(jnp.isfinite(sample.time_s) & ((sample.time_s > state.last_time) | (state.started < 0.5)),
                             sample.time_s, state.last_time),
         last_left=odo["left"], last_right=odo["right"], speed=odo["speed"],
-        window_dD=odo["window_dD"], window_AD=odo["window_AD"], wheel_heading=wheel_heading, compass_heading=h_c,
+        window_dD=odo["window_dD"], window_AD=odo["window_AD"], **odo["interval"], wheel_heading=wheel_heading,
+        compass_heading=h_c,
         f_delta=fd["f_delta"], heading=heading, e_w=e_w, e_c=e_c, sdd=fd["sdd"], factor=fd["factor"],
         delta_history=fd["history"], distance_since_F=fd["distance_since_F"],
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,

@@ -66,6 +66,11 @@ def effective_track_lookup(c, table):
     return values[i] * (1.0 - w) + values[i + 1] * w
 
 
+def velocity_corrected(dD, a, V):
+    """dD / (1 + a V^2) (m): eq. (8)'s wheel turn times T, summed over an interval before dividing by its T_E."""
+    return dD / (1.0 + a * V * V)
+
+
 def wheel_heading_change(dD, T, a, V):
     """dtheta_w = dD / (T (1 + a V^2)), US 4,788,645 eq. (8). dD in m (left minus right), T in m, V in m/s; rad."""
     return dD / (T * (1.0 + a * V * V))

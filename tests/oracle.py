@@ -3,7 +3,7 @@ reference loop of bench/bench_run.py.  Plain Python floats, one sample at a time
 
 Covers the complementary mode with refinement of a and calibration off:
 US 4,788,645 eq. (8), (14); US 4,734,863 FIG. 8A-8H (with the choices documented in jaxmodel:
-exponential curvature window, start-up floor of the filter gain, |E_h| in FIG. 8E block 5).
+eq. (14) evaluated per interval of curvature_window_m travelled metres, start-up floor of the filter gain, |E_h| in FIG. 8E block 5).
 """
 
 import math
@@ -30,7 +30,7 @@ def run_reference(p, t, left, right, cx, cy):
     out = []
     last_t, last_l, last_r = t[0], left[0], right[0]
     speed = 0.0
-    w_dD = w_AD = 0.0
+    i_num = i_dD = i_AD = i_turn = 0.0  # the curvature interval: sums of dD / (1 + a V^2), signed dD, |AD|
     H_W = F_DELTA = E_W = SDD = 0.0
     F = 1.0
     hist = [0.0, 0.0, 0.0]
@@ -55,12 +55,16 @@ def run_reference(p, t, left, right, cx, cy):
         d_t = abs(AD)
         if dt > 0:
             speed = d_t / dt
-        keep = math.exp(-d_t / p["curvature_window_m"])
-        w_dD = keep * w_dD + (dD if AD >= 0 else -dD)
-        w_AD = keep * w_AD + d_t
-        c = w_dD / w_AD if w_AD > 1e-6 else 0.0
+        # US 4,788,645 eq. (8) and (14) over the interval so far (its dD/AD), re-evaluated every sample
+        i_num += dD / (1 + p["a"] * speed**2)
+        i_dD += dD if AD >= 0 else -dD
+        i_AD += d_t
+        c = i_dD / i_AD if i_AD > 1e-9 else 0.0
         T = effective_track(c, p["P"], p["B"], p["T_F"], p["curvature_clip"]) if p["sensor_axle"] == "front" else p["T_R"]
-        alpha = dD / (T * (1 + p["a"] * speed**2))  # US 4,788,645 eq. (8)
+        alpha = i_num / T - i_turn
+        i_turn = i_num / T
+        if i_AD >= p["curvature_window_m"]:
+            i_num = i_dD = i_AD = i_turn = 0.0
         # FIG. 8A
         x, y = cx[i] - p["X0"], cy[i] - p["Y0"]
         H_C = wrap(math.atan2(y, x) - p["rotation_deg"] * rad + p["variation_deg"] * rad)
