@@ -169,7 +169,8 @@ def init_state(params) -> State:
     one = jnp.ones((), jnp.float64)
     return State(
         started=z, initialized=z, last_time=z, last_left=z, last_right=z, speed=z, window_dD=z, window_AD=z,
-        interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z, wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
+        interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z,
+        wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
         delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z,
         field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
@@ -244,8 +245,9 @@ def _odometer(params, state, sample, track_table, robust=False):
     # from the interval's own dD/AD, as the seed evaluates once per interval (once per second): per sample at
     # 10 Hz dD/AD is mostly pulse quantization, and pairing each sample's dD with a window that contains its own
     # quantization over-turns in tight turns by a bias per *sample* (T_E is steep near c_max), while a window
-    # without it lags the turn (under-turns); at 10 Hz on the matrix's vehicles the two happened to cancel, at
-    # 50 Hz or with 4-cm pulses a parking drive's wheel heading went 10-60 deg off (docs/tuning.md, stop 35).
+    # without it lags the turn (under-turns); at 10 Hz on the matrix's vehicles the two happened to cancel, but a
+    # parking drive's wheel heading drifted 14 deg RMS logged at 50 Hz, 8-23 deg with 4-cm pulses (docs/tuning.md,
+    # stop 35).
     # The interval's turn is re-evaluated every sample (``alpha`` is its change), so H_W follows within the
     # interval and its sum over the interval is dD_I / T_E(dD_I / AD_I).
     interval_dD = state.interval_dD + _track.velocity_corrected(dD, state.a, speed)

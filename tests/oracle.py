@@ -3,7 +3,8 @@ reference loop of bench/bench_run.py.  Plain Python floats, one sample at a time
 
 Covers the complementary mode with refinement of a and calibration off:
 US 4,788,645 eq. (8), (14); US 4,734,863 FIG. 8A-8H (with the choices documented in jaxmodel:
-eq. (14) evaluated per interval of curvature_window_m travelled metres, start-up floor of the filter gain, |E_h| in FIG. 8E block 5).
+eq. (14) evaluated per interval of curvature_window_m travelled metres, start-up floor of the filter
+gain, |E_h| in FIG. 8E block 5).
 """
 
 import math
