@@ -271,10 +271,12 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     s2 = deg(params.filter_check_sigma_deg) ** 2
     gate2 = params.filter_gate_sigma ** 2
     z2 = disturbance ** 2 / (p_hh + s2)
-    # Information counted once per kf_compass_corr_m metres: no gain while standing still.
-    per_distance = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
+    # Information counted once per filter_compass_corr_m metres (no gain while standing still) and at most once per
+    # COMPASS_CORR_S seconds: how many such samples make one compass measurement.
+    samples_per_measurement = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
     if dt is not None:
-        per_distance = jnp.maximum(per_distance, safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
+        samples_per_measurement = jnp.maximum(samples_per_measurement,
+                                              safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
     is_lost = lost(params, disturbance)
@@ -291,7 +293,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     wander = jnp.where(jump, JUMP_WANDER * deg(LOST_STEADY_DEG) ** 2, wander)
     steadily = jnp.sqrt(wander) < deg(LOST_STEADY_DEG)
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
-    r = sigma ** 2 * per_distance / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
+    r = sigma ** 2 * samples_per_measurement / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
     gain = [v * inv for v in ph]

@@ -73,4 +73,4 @@ def velocity_corrected(dD, a, V):
 
 def wheel_heading_change(dD, T, a, V):
     """dtheta_w = dD / (T (1 + a V^2)), US 4,788,645 eq. (8). dD in m (left minus right), T in m, V in m/s; rad."""
-    return dD / (T * (1.0 + a * V * V))
+    return velocity_corrected(dD, a, V) / T
