@@ -79,7 +79,8 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   drive started in a garage);
   after ``filter_reacquire_lost_steady_m`` when that disagreement is steady (``wander`` below
   LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.  A lost
-  filter counts its metres at no less than LOST_MIN_SPEED while the car moves (``lost_distance``).
+  filter counts its metres at no less than LOST_MIN_SPEED (``lost_distance``), standing still too when the
+  disagreement jumped there and stays steady (the field changed around a car that did not turn).
 """
 
 from __future__ import annotations
@@ -302,7 +303,11 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # Counted from a jump beyond filter_reacquire_large_deg (the level restarts there), else from when the running
     # disagreement passed it; held (not reset) while the compass stays rejected, where it dips under it.
     beyond = is_lost | (jnp.abs(level) > deg(params.filter_reacquire_large_deg))
-    lost_m = jnp.where(weight < 0.5, f.lost_m + jnp.where(beyond, d_lost, 0.0), 0.0)
+    # Standing still, the running disagreement cannot move (it is averaged over metres), but a compass that jumped
+    # while the car stood and stays steadily that far off is judged by time (``lost_distance``): the wheels saw no
+    # turn, so the field changed around the car (the garage it started in, left without moving on).
+    standing_lost = (d_t <= 0.0) & steadily & (jnp.abs(level) > deg(params.filter_reacquire_large_deg))
+    lost_m = jnp.where((weight < 0.5) | standing_lost, f.lost_m + jnp.where(beyond, d_lost, 0.0), 0.0)
     new_x = [v + gi * nu for v, gi in zip(x, gain)]
     new_P = {f"p{i}{j}": P[i][j] - gain[i] * ph[j] for i, j in _UPPER}
     new = OffsetFields(
@@ -322,7 +327,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # The early restart needs a rate the filter is sure of: a compass whose error depends on the heading (a shifted
     # hard iron) teaches the rate filter a rate of 1-1.5 sigma, and restarting on it put urban/hard_iron_shift/106
     # 16 deg off for the last 4 minutes.
-    reacquire = jnp.where(is_lost, lost_m > lost_after, rejected_m > jnp.where(
+    reacquire = jnp.where(is_lost | standing_lost, lost_m > lost_after, rejected_m > jnp.where(
         drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
@@ -365,7 +370,7 @@ stop 35 measured 0.47 -> 0.79 deg on highway/baseline/101 logged at 50 Hz withou
 LOST_STEADY_M = 10.0
 """Distance (m) over which the steadiness of a lost filter's disagreement is judged."""
 LOST_MIN_SPEED = 2.0
-"""While moving, a lost filter counts at least this many metres per second (m/s) towards its restart (``lost_distance``)."""
+"""A lost filter counts at least this many metres per second (m/s) towards its restart (``lost_distance``)."""
 LOST_STEADY_DEG = 15.0
 """A disagreement that wanders less than this (RMS about its mean, deg) is steady."""
 JUMP_WANDER = 2.0
@@ -374,12 +379,14 @@ JUMP_WANDER = 2.0
 
 def lost_distance(d_t, dt):
     """Metres counted towards a lost filter's restart for one sample of |AD| = d_t (m) over dt (s): d_t, but at
-    least LOST_MIN_SPEED x dt while the vehicle moves, and nothing while it stands.  A car leaving at walking pace
-    the garage it started in covers filter_reacquire_lost_steady_m in 10-15 s with its heading 60-140 deg off
-    (parking/garage_start/103, 108, 203: 15-20 deg RMSE); an anomaly is still left behind in metres, not seconds,
-    at any speed above LOST_MIN_SPEED."""
+    least LOST_MIN_SPEED x dt.  A car leaving at walking pace the garage it started in covers
+    filter_reacquire_lost_steady_m in 10-15 s with its heading 60-140 deg off (parking/garage_start/103, 108, 203:
+    15-20 deg RMSE); an anomaly is still left behind in metres, not seconds, at any speed above LOST_MIN_SPEED.
+    Standing still, the time counts only for a steady jump of the disagreement (``update``'s ``standing_lost``): the
+    field changed around a car that did not turn (stop 36: parking/garage_start/108 15.4 -> 0.5 deg, 103 15.8 -> 9.5
+    deg; the simulator's garage vanishes while those cars stand)."""
     # A gap in the log (dt of minutes) counts as at most 10 s: the distance driven then counts in full.
-    return jnp.where(d_t > 0.0, jnp.maximum(d_t, LOST_MIN_SPEED * jnp.minimum(dt, 10.0)), 0.0)
+    return jnp.maximum(d_t, LOST_MIN_SPEED * jnp.minimum(dt, 10.0))
 
 
 def lost(params, disturbance):

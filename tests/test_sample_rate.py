@@ -12,7 +12,7 @@ import jaxmodel as jm
 from identification import scenario_eval as ev
 from identification import scenarios as sc
 from identification import simulate as simulate_module
-from jaxmodel import offset_filter
+from jaxmodel import kalman, offset_filter
 
 
 def _drive_at(monkeypatch, rate_hz, name):
@@ -70,3 +70,20 @@ def test_compass_information_is_counted_per_time_at_most_once_per_10_hz_sample()
                                        jnp.asarray(True), jnp.asarray(False), jnp.asarray(0.0), dt=jnp.asarray(0.02))
     assert float(five.delta) == pytest.approx(float(without.delta), rel=0.15)
 
+
+
+def test_the_kalman_mode_counts_the_compass_per_time_too():
+    """kalman.compass_noise / map_noise with the sample's time step: a 10-Hz sample (0.096-0.104 s) on a highway
+    (3 m, beyond kf_compass_corr_m 2.2 m) keeps its variance; the five 0.6-m samples of a 50-Hz log that cover the
+    same 3 m and 0.1 s carry one 10-Hz sample's information (the distance alone counted 1.36 of it)."""
+    params = jm.make_params()
+    e_c = jnp.asarray(0.01)
+    for noise in (lambda d, dt=None: kalman.compass_noise(params, e_c, d, dt),
+                  lambda d, dt=None: kalman.map_noise(params, d, dt)):
+        r_10 = float(noise(jnp.asarray(3.0)))
+        assert float(noise(jnp.asarray(3.0), jnp.asarray(0.096))) == r_10
+        assert float(noise(jnp.asarray(3.0), jnp.asarray(0.104))) == r_10
+        r_50 = float(noise(jnp.asarray(0.6), jnp.asarray(0.02)))
+        assert 5.0 / r_50 == pytest.approx(1.0 / r_10 / (0.09 / 0.1), rel=1e-9)  # one per 0.09 s
+        assert 5.0 / float(noise(jnp.asarray(0.6))) == pytest.approx(3.0 / float(params.kf_compass_corr_m) / r_10)
+        assert float(noise(jnp.asarray(0.0), jnp.asarray(0.1))) >= 1e8 * r_10  # standing: no information
