@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from . import calibration as _cal
 from . import compass as _compass
+from . import compass_shift as _shift
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
@@ -50,6 +51,8 @@ class Config(NamedTuple):
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°
     off, one pulse burst 10°).  hard_iron: online estimate of the compass offsets X0/Y0 from the
     field seen while turning (jaxmodel/hard_iron.py), started from the parameters' X0/Y0; off by default.
+    compass_shift (robust, without hard_iron): a shifted hard iron found from the wheels' heading while the
+    filter rejects the compass (jaxmodel/compass_shift.py).
     """
 
     mode: str = "complementary"
@@ -58,6 +61,7 @@ class Config(NamedTuple):
     track: str = "closed_form"
     robust: bool = True
     hard_iron: bool = False
+    compass_shift: bool = True
 
 
 DEFAULT_CONFIG = Config()
@@ -135,6 +139,7 @@ class State(NamedTuple):
     offset: _offset.OffsetState
     steady: _offset.OffsetState   # F-DELTA without a rate state (the heading while the rate is insignificant)
     hard_iron: _hard_iron.HardIronState  # online X0/Y0 (Config.hard_iron; else carried unchanged)
+    shift: _shift.ShiftState      # a shifted hard iron learned while the compass is rejected (Config.compass_shift)
 
 
 class Outputs(NamedTuple):
@@ -176,7 +181,7 @@ def init_state(params) -> State:
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
-        hard_iron=_hard_iron.init_hard_iron_state(params),
+        hard_iron=_hard_iron.init_hard_iron_state(params), shift=_shift.init_shift_state(),
     )
 
 
@@ -271,11 +276,19 @@ def _odometer(params, state, sample, track_table, robust=False):
                 guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
+def _learns_shift(config):
+    """Config.compass_shift applies: the robust complementary mode without Config.hard_iron (the other modes are
+    the matrix's single-sensor references and the Kalman filter, which read the compass as it is)."""
+    return config.robust and config.compass_shift and not config.hard_iron and config.mode == "complementary"
+
+
 def _compass_stage(params, state, sample, config, d_t, alpha):
     """FIG. 8A: compass heading, field magnitude and validity (offsets learned online with
     Config.hard_iron, whose first accepted fit restarts the heading and B_E).  Returns (state,
     hard_iron state, H_C raw (rad), |B| (µT), compass_ok)."""
     if not config.hard_iron:
+        if _learns_shift(config):
+            params = params._replace(X0=params.X0 + state.shift.ox, Y0=params.Y0 + state.shift.oy)
         h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
         return state, state.hard_iron, h_c_raw, b_m, compass_ok
     hard_iron, restart = _hard_iron.update(params, state.hard_iron, sample.compass_x, sample.compass_y, d_t,
@@ -317,6 +330,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
+    predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
     drift_significant = _offset.drifting_significantly(params, offset)
@@ -336,13 +350,30 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
                                    hold_on_drift=not _captures_drift(config))
     f_delta = shown.delta
 
+    field_sum, field_count = state.field_sum, state.field_count
+    if _learns_shift(config):
+        # A lost filter's restart (F-DELTA moved beyond filter_reacquire_large_deg in one sample) says the compass the
+        # heading started from was disturbed (a garage): so was the B_E learned from it, which the shift learner reads.
+        lost_restart = jnp.abs(wrap(offset.delta - predicted_delta)) > deg(params.filter_reacquire_large_deg)
+        field_sum = jnp.where(lost_restart, 0.0, field_sum)
+        field_count = jnp.where(lost_restart, 0.0, field_count)
     field_sum, field_count = _compass.learn_field(
-        params, state.field_sum, state.field_count, h_c_raw, b_m, b_e, d_t,
+        params, field_sum, field_count, h_c_raw, b_m, b_e, d_t,
         compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
+    complementary = wrap(wheel_heading + f_delta)
+    shift = state.shift
+    if _learns_shift(config):
+        # The wheels carry EH while the compass is rejected; not while they drift (a tyre mismatch), while the
+        # filter is lost (the heading itself may be wrong), in fast turns (roll) or on the map's heading.
+        learn = (compass_ok & (clean_weight < 0.5) & ~drifting & ~_offset.lost(params, offset.disturbance)
+                 & (jnp.abs(odo["turn_rate"]) < _shift.SHIFT_MAX_TURN_RATE) & ~map_used & ~initializing
+                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5))
+        shift = _shift.update(shift, sample.compass_x - params.X0 - shift.ox, sample.compass_y - params.Y0 - shift.oy,
+                              h_c_raw, complementary, b_e, d_t, learn, deg(params.rotation_deg))
     return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,
                 factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
                 offset=offset, steady=steady, shown=shown, f_delta=f_delta,
-                complementary=wrap(wheel_heading + f_delta), field_sum=field_sum, field_count=field_count)
+                complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift)
 
 
 def _seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,
@@ -506,7 +537,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         delta_history=fd["history"], distance_since_F=fd["distance_since_F"],
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
         x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
-        guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron,
+        guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron, shift=fd.get("shift", state.shift),
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
