@@ -91,6 +91,13 @@ def update(state: ShiftState, compass_x, compass_y, h_c, heading, b_e, d_t, use,
     wheels do not drift, the vehicle does not turn fast; ``rotation`` (rad) the mounting rotation R, which turns
     the vehicle's forward axis in the compass's frame.  Returns the new state (ox, oy moved when the module
     doc's conditions hold)."""
+    # Double-where: a NaN or zero sample must not reach arctan2 or the sums even on the branch not taken (its
+    # gradient would be NaN times zero).
+    valid = (jnp.isfinite(compass_x) & jnp.isfinite(compass_y) & jnp.isfinite(heading) & jnp.isfinite(b_e)
+             & (compass_x * compass_x + compass_y * compass_y > 1e-12))
+    use = use & valid
+    compass_x, compass_y = jnp.where(valid, compass_x, 1.0), jnp.where(valid, compass_y, 0.0)
+    heading, b_e = jnp.where(valid, heading, 0.0), jnp.where(valid, b_e, 1.0)
     raw = jnp.arctan2(compass_y, compass_x)
     expected = raw - wrap(h_c - heading)
     rx = compass_x - b_e * jnp.cos(expected)
