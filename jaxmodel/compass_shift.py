@@ -42,6 +42,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .angles import safe_div, safe_sqrt, wrap
+from .hard_iron import resultant_of_arc
 
 SHIFT_MEMORY_M = 1000.0
 """Rejected metres over which the residual sums forget (m)."""
@@ -79,11 +80,6 @@ def init_shift_state() -> ShiftState:
     return ShiftState(z, z, z, z, z, z, z, z)
 
 
-def _resultant_of_arc(width_rad):
-    """Mean resultant length of headings spread uniformly over an arc of this width: sin(A/2) / (A/2)."""
-    return jnp.sin(0.5 * width_rad) / (0.5 * width_rad)
-
-
 def update(state: ShiftState, compass_x, compass_y, h_c, heading, b_e, d_t, use, rotation=0.0):
     """Learn from one sample: the offset-corrected components ``compass_x``, ``compass_y`` (compass units, the
     parameters' X0/Y0 and ``state``'s change already taken out), their heading H_C (rad), the fused heading EH
@@ -116,7 +112,7 @@ def update(state: ShiftState, compass_x, compass_y, h_c, heading, b_e, d_t, use,
     scatter = safe_sqrt(jnp.maximum(safe_div(sq, w, eps=1e-9, fallback=0.0) - mx * mx - my * my, 0.0))
     resultant = safe_div(safe_sqrt(sc * sc + ss * ss), w, eps=1e-9, fallback=1.0)
     shift = safe_sqrt(mx * mx + my * my)
-    move = (ok & (w > SHIFT_MIN_M) & (resultant < _resultant_of_arc(jnp.radians(SHIFT_MIN_TURN_DEG)))
+    move = (ok & (w > SHIFT_MIN_M) & (resultant < resultant_of_arc(jnp.radians(SHIFT_MIN_TURN_DEG)))
             & (scatter < SHIFT_MAX_SCATTER * b_e) & (shift > SHIFT_MIN_CHANGE * b_e)
             & (jnp.abs(my * jnp.cos(rotation) - mx * jnp.sin(rotation)) > jnp.sin(jnp.radians(SHIFT_AXIS_DEG)) * shift))
     keep = jnp.where(move, 0.0, 1.0)

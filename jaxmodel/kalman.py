@@ -76,7 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .angles import safe_div, wrap
-from .offset_filter import COMPASS_CORR_S
+from .offset_filter import samples_per_measurement
 from .params import deg
 
 N_STATES = 7
@@ -254,10 +254,7 @@ def _samples_per_measurement(params, distance, dt):
     one per offset_filter.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time).
     10-Hz samples (0.096-0.104 s apart) are left as they were; a 50-Hz log of the same highway drive (0.6 m per
     sample against the 10-Hz log's 3 m) no longer counts 1.4 times the compass information."""
-    factor = jnp.maximum(1.0, safe_div(params.kf_compass_corr_m, jnp.abs(distance), eps=1e-9, fallback=1e9))
-    if dt is not None:
-        factor = jnp.maximum(factor, safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
-    return jnp.minimum(factor, 1e9)
+    return jnp.minimum(samples_per_measurement(params.kf_compass_corr_m, distance, dt, standing=1e9), 1e9)
 
 
 def compass_noise(params, e_c, distance, dt=None):

@@ -274,10 +274,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     z2 = disturbance ** 2 / (p_hh + s2)
     # Information counted once per filter_compass_corr_m metres (no gain while standing still) and at most once per
     # COMPASS_CORR_S seconds: how many such samples make one compass measurement.
-    samples_per_measurement = jnp.maximum(1.0, safe_div(params.filter_compass_corr_m, d_t, eps=1e-9, fallback=1e12))
-    if dt is not None:
-        samples_per_measurement = jnp.maximum(samples_per_measurement,
-                                              safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
+    per_measurement = samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
     is_lost = lost(params, disturbance)
@@ -294,7 +291,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     wander = jnp.where(jump, JUMP_WANDER * deg(LOST_STEADY_DEG) ** 2, wander)
     steadily = jnp.sqrt(wander) < deg(LOST_STEADY_DEG)
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
-    r = sigma ** 2 * samples_per_measurement / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
+    r = sigma ** 2 * per_measurement / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
     inv = 1.0 / (p_hh + r)
     gain = [v * inv for v in ph]
@@ -375,6 +372,16 @@ LOST_STEADY_DEG = 15.0
 """A disagreement that wanders less than this (RMS about its mean, deg) is steady."""
 JUMP_WANDER = 2.0
 """Wander (in LOST_STEADY_DEG^2) a jump of the disagreement restarts from: ~7 m of steadiness make it steady."""
+
+
+def samples_per_measurement(corr_m, distance_m, dt, standing=1e12):
+    """How many samples make one independent compass measurement: one per ``corr_m`` metres of |distance_m|
+    (``standing`` where it is zero: no information from repeating a reading) and at most one per COMPASS_CORR_S
+    seconds of ``dt`` (s; None: not counted in time).  Shared by this filter and the Kalman mode."""
+    per = jnp.maximum(1.0, safe_div(corr_m, jnp.abs(distance_m), eps=1e-9, fallback=standing))
+    if dt is not None:
+        per = jnp.maximum(per, safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
+    return per
 
 
 def lost_distance(d_t, dt):
