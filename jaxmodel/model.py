@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
+from . import dequantize as _dequant
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
@@ -52,7 +53,8 @@ class Config(NamedTuple):
     off, one pulse burst 10°).  hard_iron: online estimate of the compass offsets X0/Y0 from the
     field seen while turning (jaxmodel/hard_iron.py), started from the parameters' X0/Y0; off by default.
     compass_shift (robust, without hard_iron): a shifted hard iron found from the wheels' heading while the
-    filter rejects the compass (jaxmodel/compass_shift.py).
+    filter rejects the compass (jaxmodel/compass_shift.py).  dequantize (robust, every mode but 'compass'): the
+    counts' quantization taken out of the heading output (jaxmodel/dequantize.py).
     """
 
     mode: str = "complementary"
@@ -62,6 +64,7 @@ class Config(NamedTuple):
     robust: bool = True
     hard_iron: bool = False
     compass_shift: bool = True
+    dequantize: bool = True
 
 
 DEFAULT_CONFIG = Config()
@@ -140,6 +143,7 @@ class State(NamedTuple):
     steady: _offset.OffsetState   # F-DELTA without a rate state (the heading while the rate is insignificant)
     hard_iron: _hard_iron.HardIronState  # online X0/Y0 (Config.hard_iron; else carried unchanged)
     shift: _shift.ShiftState      # a shifted hard iron learned while the compass is rejected (Config.compass_shift)
+    dequant: _dequant.DequantState  # the wheel heading between pulses (robust modes that turn with the wheels)
 
 
 class Outputs(NamedTuple):
@@ -182,6 +186,7 @@ def init_state(params) -> State:
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
         hard_iron=_hard_iron.init_hard_iron_state(params), shift=_shift.init_shift_state(),
+        dequant=_dequant.init_dequant_state(),
     )
 
 
@@ -511,6 +516,14 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
                "kalman": kalman_heading}[config.mode]
+    dequant = state.dequant
+    if robust and config.dequantize and config.mode != "compass":
+        # The counts' quantization taken out of the heading output (jaxmodel/dequantize.py); H_W stays as counted.
+        dpp = jnp.maximum(state.calibration.dpp_left, state.calibration.dpp_right)
+        dequant, epsilon = _dequant.update(state.dequant, alpha, odo["dt"], d_t > 0.0,
+                                           _dequant.pulse_heading(dpp, odo["track"]),
+                                           initializing | (initialized < 0.5))
+        heading = wrap(heading + epsilon)
 
     # Dead-reckoned position with the mid-sample heading (x east, y north; heading from north).
     if config.mode == "kalman":
@@ -538,6 +551,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
         x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
         guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron, shift=fd.get("shift", state.shift),
+        dequant=dequant,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
