@@ -23,9 +23,14 @@ dropped_rows        3 % of the rows lost at random and one 3-s gap (a logger tha
 counter_reset       both pulse counters restart from 0 halfway through the drive (an ECU reset)
 stuck_wheel         the left counter stops for 5 s at 40 % of the drive, then counts on (the pulses are lost)
 stuck_wheel_long    the same for 10 s at 60 % of the drive (stop 32)
+coarse_pulses       every third pulse counted (a ring of fewer teeth: 4-9 cm per pulse; the vehicle's dpp x 3)
+compass_noise       1 µT more white noise on each compass axis (a cheaper magnetometer: ~3 deg per sample)
+weak_field          the compass reads half the field, with the sensor's own 0.25 µT of noise (a high latitude)
 ==================  ===================================================================================
 
-The last four were added at stop 31, after the default's constants were frozen, as judges only.
+The four from time_jitter on were added at stop 31, after the default's constants were frozen, as judges only.
+The last three were added at stop 37; coarse_pulses (seeds 101/104) chose the form of model.INTERVAL_MIN_PULSES,
+so it judges on other seeds only (107/108: docs/benchmarks.md).
 
 ``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).
 
@@ -155,6 +160,28 @@ def _stuck_wheel(drive, at=0.4, duration_s=5.0):
     drive.columns["left_pulses"] = left % 65536
 
 
+def _coarse_pulses(drive, every=3):
+    """Every ``every``-th pulse counted, and the vehicle's dpp (the estimator's parameter) ``every`` times longer."""
+    for key in ("left_pulses", "right_pulses"):
+        drive.columns[key] = (sc.unwrap_counter(drive.columns[key]) // every) % 65536
+    drive.params["dpp_left"] *= every
+    drive.params["dpp_right"] *= every
+
+
+def _compass_noise(drive, sigma_ut=1.0):
+    rng = np.random.default_rng([drive.seed, 8])
+    for key in ("compass_x", "compass_y"):
+        c = np.asarray(drive.columns[key], float)
+        drive.columns[key] = c + sigma_ut * rng.standard_normal(c.size)
+
+
+def _weak_field(drive, scale=0.5, sigma_ut=0.25):
+    rng = np.random.default_rng([drive.seed, 9])
+    for key in ("compass_x", "compass_y"):
+        c = np.asarray(drive.columns[key], float)
+        drive.columns[key] = scale * c + sigma_ut * rng.standard_normal(c.size)
+
+
 DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_delay": _compass_delay,
                 "compass_hold": _compass_hold,
                 "compass_spikes": _compass_spikes, "fixed_hard_iron": _fixed_hard_iron, "wheel_slip": _wheel_slip,
@@ -163,7 +190,8 @@ DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compas
                 "log_1hz": lambda drive: _decimate(drive, 10),
                 "time_jitter": _time_jitter, "dropped_rows": _dropped_rows, "counter_reset": _counter_reset,
                 "stuck_wheel": _stuck_wheel,
-                "stuck_wheel_long": lambda drive: _stuck_wheel(drive, at=0.6, duration_s=10.0)}
+                "stuck_wheel_long": lambda drive: _stuck_wheel(drive, at=0.6, duration_s=10.0),
+                "coarse_pulses": _coarse_pulses, "compass_noise": _compass_noise, "weak_field": _weak_field}
 
 
 def main():
