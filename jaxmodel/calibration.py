@@ -105,7 +105,6 @@ CalibrationState = packed_state(
     CalibrationFields, "CalibrationState",
     "The calibration's state as one float64 vector in CalibrationFields order; each field reads as "
     "an attribute (``cs.ratio``, also on stacked states); see jaxmodel/packed.py.")
-CalibrationState.__module__ = __name__
 
 
 def _coefficients(params, ratio):

@@ -50,7 +50,6 @@ class DequantFields(NamedTuple):
 
 
 DequantState = packed_state(DequantFields, "DequantState", "State of the wheel heading's dequantization filter.")
-DequantState.__module__ = __name__
 
 
 def _started(quantum_sigma):

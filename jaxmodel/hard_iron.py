@@ -80,7 +80,6 @@ class HardIronFields(NamedTuple):
 
 HardIronState = packed_state(HardIronFields, "HardIronState",
                              "State of the online hard-iron estimate (one float64 vector).")
-HardIronState.__module__ = __name__
 
 
 def init_hard_iron_state(params):

@@ -150,7 +150,6 @@ class OffsetFields(NamedTuple):
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 _SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("since_drift")].set(1.0)
 """1 at ``since_drift`` in the packed vector, 0 elsewhere (``restart_hold``)."""
-OffsetState.__module__ = __name__
 
 
 def _covariance(f):

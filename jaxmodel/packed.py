@@ -35,6 +35,7 @@ def packed_state(fields_type, name: str, doc: str):
         return Packed(jnp.stack([jnp.asarray(v, jnp.float64) for v in values], axis=-1))
 
     Packed.__name__ = Packed.__qualname__ = name
+    Packed.__module__ = fields_type.__module__  # the module that declares the fields (pickling, repr)
     Packed.__doc__ = doc
     Packed.fields = fields
     Packed.pack = staticmethod(pack)

@@ -105,7 +105,6 @@ class GuardFields(NamedTuple):
 
 
 GuardState = packed_state(GuardFields, "GuardState", "State of the odometer plausibility guard (one float64 vector).")
-GuardState.__module__ = __name__
 
 
 def init_guard_state():

@@ -40,7 +40,6 @@ class _RefineFields(NamedTuple):
 RefineState = packed_state(
     _RefineFields, "RefineState",
     "The refinement's state as one float64 vector in _RefineFields order (jaxmodel/packed.py).")
-RefineState.__module__ = __name__
 
 
 def init_refine_state():
