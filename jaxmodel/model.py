@@ -195,7 +195,8 @@ INTERVAL_MIN_PULSES = 32.0
 The bias of dD_I / T_E(dD_I / AD_I) from the quantization of dD_I grows as (dpp / interval)^2 per metre; the 1-m
 interval was chosen with 1.4-3-cm pulses (33-70 per interval).  With 7-cm pulses (an ABS ring of 29 teeth) the
 odometer-only heading drifted 13.3 deg RMS on parking/baseline/101 (1.0 deg at 2.3 cm), 1.2 deg with 32 pulses
-(stop 37, docs/tuning.md); the matrix's vehicles (dpp <= 3 cm) keep their 1-m interval.  The robust modes only: the seed filter keeps the seed's."""
+(stop 37, docs/tuning.md); the matrix's vehicles (dpp <= 3 cm) keep their 1-m interval.  The robust modes only:
+the seed filter keeps the seed's."""
 
 RECALIBRATION_HOLD = 1e-4
 """Relative change of the ratio in one calibration update beyond which the steady F-DELTA's follow hold restarts."""
