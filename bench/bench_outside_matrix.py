@@ -168,18 +168,20 @@ def _coarse_pulses(drive, every=3):
     drive.params["dpp_right"] *= every
 
 
-def _compass_noise(drive, sigma_ut=1.0):
-    rng = np.random.default_rng([drive.seed, 8])
-    for key in ("compass_x", "compass_y"):
-        c = np.asarray(drive.columns[key], float)
-        drive.columns[key] = c + sigma_ut * rng.standard_normal(c.size)
-
-
-def _weak_field(drive, scale=0.5, sigma_ut=0.25):
-    rng = np.random.default_rng([drive.seed, 9])
+def _scaled_noisy_compass(drive, scale, sigma_ut, stream):
+    """Both compass axes times ``scale``, plus white noise of ``sigma_ut`` (µT) from the drive's random ``stream``."""
+    rng = np.random.default_rng([drive.seed, stream])
     for key in ("compass_x", "compass_y"):
         c = np.asarray(drive.columns[key], float)
         drive.columns[key] = scale * c + sigma_ut * rng.standard_normal(c.size)
+
+
+def _compass_noise(drive, sigma_ut=1.0):
+    _scaled_noisy_compass(drive, 1.0, sigma_ut, stream=8)
+
+
+def _weak_field(drive, scale=0.5, sigma_ut=0.25):
+    _scaled_noisy_compass(drive, scale, sigma_ut, stream=9)
 
 
 DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compass_delay": _compass_delay,

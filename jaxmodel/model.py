@@ -222,6 +222,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     n_left = _decode_counter(left, state.last_left, params.counter_modulus)
     n_right = _decode_counter(right, state.last_right, params.counter_modulus)
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
+    dpp = jnp.maximum(dpp_left, dpp_right)  # the longer pulse: the counts' resolution
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
     if robust:
@@ -238,7 +239,7 @@ def _odometer(params, state, sample, track_table, robust=False):
         # A jump beyond max_speed (over the sample interval, 0.1 s if the time step is unusable)
         # is a counter fault; the sample's distance is dropped and the counters resync.
         d_left, d_right = n_left * dpp_left, n_right * dpp_right
-        limit = params.max_speed * jnp.where(time_ok, dt, 0.1) + 2.0 * jnp.maximum(dpp_left, dpp_right)
+        limit = params.max_speed * jnp.where(time_ok, dt, 0.1) + 2.0 * dpp
         plausible = counts_finite & started & (jnp.abs(d_left) <= limit) & (jnp.abs(d_right) <= limit)
         d_left = jnp.where(plausible, d_left, 0.0)
         d_right = jnp.where(plausible, d_right, 0.0)
@@ -282,14 +283,14 @@ def _odometer(params, state, sample, track_table, robust=False):
     # Coarse pulses (robust): the interval holds at least INTERVAL_MIN_PULSES pulses of travel.
     interval_m = params.curvature_window_m
     if robust:
-        interval_m = jnp.maximum(interval_m, INTERVAL_MIN_PULSES * jnp.maximum(dpp_left, dpp_right))
+        interval_m = jnp.maximum(interval_m, INTERVAL_MIN_PULSES * dpp)
     ended = computed_once(interval_AD >= interval_m)
     interval = dict(interval_dD=interval_dD, interval_signed_dD=interval_signed_dD, interval_AD=interval_AD,
                     interval_turn=turn)
     interval = {k: jnp.where(ended, 0.0, v) for k, v in interval.items()}
     return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
                 d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
-                interval=interval, track=track, alpha=alpha, plausible=plausible, kept=kept,
+                interval=interval, track=track, alpha=alpha, dpp=dpp, plausible=plausible, kept=kept,
                 guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
@@ -531,9 +532,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     dequant = state.dequant
     if robust and config.dequantize and config.mode != "compass":
         # The counts' quantization taken out of the heading output (jaxmodel/dequantize.py); H_W stays as counted.
-        dpp = jnp.maximum(state.calibration.dpp_left, state.calibration.dpp_right)
         dequant, epsilon = _dequant.update(state.dequant, alpha, odo["dt"], d_t > 0.0,
-                                           _dequant.pulse_heading(dpp, odo["track"]),
+                                           _dequant.pulse_heading(odo["dpp"], odo["track"]),
                                            initializing | (initialized < 0.5))
         heading = wrap(heading + epsilon)
 
