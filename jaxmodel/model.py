@@ -397,7 +397,7 @@ def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, 
                 factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
                 offset=offset, steady=steady, shown=shown, f_delta=f_delta,
                 complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift,
-                clean_weight=clean_weight, drifting=drifting, sigma=sigma)
+                clean_weight=clean_weight, sigma=sigma)
 
 
 def _seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,

@@ -113,9 +113,9 @@ def deviation(ss, harmonics_of_a):
 
 def update(ss, delta, harmonics_of_a, alpha, d_t, clean, quality):
     """One sample: ``delta`` = H_C - H_W before this module's correction (rad), ``harmonics_of_a`` those of the compass
-    heading A it was read at (``harmonics``), ``alpha`` the wheels' turn this sample (rad), ``d_t`` the metres driven, ``clean`` (bool) the
-    compass was taken as clean, ``quality`` (0, 1] the ratio of a clean compass's sigma to this sample's (E_C, the
-    lag in turns).  Returns the state."""
+    heading A it was read at (``harmonics``), ``alpha`` the wheels' turn this sample (rad), ``d_t`` the metres
+    driven, ``clean`` (bool) the compass was taken as clean, ``quality`` (0, 1] the ratio of a clean compass's sigma
+    to this sample's (E_C, the lag in turns).  Returns the state."""
     f = ss.fields()
     # A sample that is not clean may carry anything (a NaN compass): it must not reach the sums, not even times 0.
     delta = jnp.where(clean, delta, f.mean_delta)
