@@ -148,6 +148,8 @@ class OffsetFields(NamedTuple):
 # vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
 # (docs/tuning.md, "Throughput, stop 22").
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
+_BETA_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("beta")].set(1.0)
+"""1 at ``beta`` in the packed vector, 0 elsewhere (``shift_rate``)."""
 _SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("since_drift")].set(1.0)
 """1 at ``since_drift`` in the packed vector, 0 elsewhere (``restart_hold``)."""
 
@@ -421,8 +423,9 @@ def compass_sigma(params, e_c, turn_rate):
 
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves opposite."""
-    f = fs.fields()
-    return OffsetState.pack(f._replace(beta=f.beta - change_per_m))
+    # A one-hot update of the packed vector: unpacking and repacking all its fields cost XLA:CPU about a seventh of
+    # the default step (bench/bench_run.py, stop 39).
+    return OffsetState(fs.vector - jnp.asarray(change_per_m)[..., None] * _BETA_ONEHOT)
 
 
 def bound(params, fs, initialized):
