@@ -6,8 +6,8 @@ Y1 - Y0; where X0 and Y0 are the compass offsets"; its deviation table and rotat
 compass means 23 in a number of known headings" (description of means 32, FIG. 8C).  The seed
 does not say how X0/Y0 are found, and nothing in it updates them while driving (issue 14 says
 it does; the text we have does not): the online estimate here is our extension, for a compass
-that was never calibrated or whose vehicle's magnetisation changed.  It uses what the seed's calibration uses, the horizontal field seen at
-several headings, and takes the headings from the drive's own turns.
+that was never calibrated or whose vehicle's magnetisation changed.  It uses what the seed's calibration uses,
+the horizontal field seen at several headings, and takes the headings from the drive's own turns.
 
 Model.  Without offsets the horizontal field (x, y) lies on a circle of radius r (the earth's
 horizontal field) around (X0, Y0) at every heading:
@@ -36,8 +36,8 @@ and the same forgetful weighted sums of cos psi and sin psi give the mean result
 R = |E[exp(i psi)]|, which is sin(A/2) / (A/2) for headings covering an arc of width A
 uniformly.  The fit is accepted when R is below that value for A = ``hard_iron_min_turn_deg``,
 the sums hold more than ``hard_iron_min_distance_m`` metres and r^2 > 0; otherwise the last
-accepted offsets stay (at the start: the parameters' X0, Y0).  ``restart`` is true at the first accepted fit that moves the
-offsets by more than ``hard_iron_restart_fraction`` of r: the estimator then starts its heading
+accepted offsets stay (at the start: the parameters' X0, Y0).  ``restart`` is true at the first accepted fit that
+moves the offsets by more than ``hard_iron_restart_fraction`` of r: the estimator then starts its heading
 again from the corrected compass (jaxmodel/model.py).
 
 All sums are taken relative to the parameters' X0, Y0 (less cancellation).  Everything is

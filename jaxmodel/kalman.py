@@ -144,7 +144,8 @@ def transition(params, dt, s, course, alpha=0.0):
         jnp.stack([z, z, z, z, z, z, ef]),
     ])
     q11 = sig_gm2 * (1.0 - e1 * e1)
-    q22 = q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s) + (params.kf_turn_sigma * alpha) ** 2
+    q22 = (q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s)
+           + (params.kf_turn_sigma * alpha) ** 2)
     q23 = q_ramp * dt ** 2 / 2.0
     q33 = q_ramp * dt
     along = (params.kf_speed_sigma * s) ** 2          # distance-scale error, along track

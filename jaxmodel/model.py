@@ -47,7 +47,8 @@ class Config(NamedTuple):
     (eq. 14) or 'table' (claims 15-16).  robust (the default, issue 10): the odometer guard
     of jaxmodel/plausibility.py in every mode, F-DELTA by the Kalman filter of
     jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error, turn scale error; the
-    heading from its rate-free steady twin while the rate is insignificant), B_E per heading, FIG. 8E before 8F, calibration that captures up to
+    heading from its rate-free steady twin while the rate is insignificant), B_E per heading, FIG. 8E before 8F,
+    calibration that captures up to
     cal_max_correction, reliability 0 before any absolute heading.  robust=False: the seed's
     first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°
@@ -174,7 +175,8 @@ class Outputs(NamedTuple):
     map_used: jnp.ndarray             # 1.0 if the map heading replaced the compass
     dpp_ratio: jnp.ndarray            # dpp_right / dpp_left
     distance: jnp.ndarray             # m
-    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: heading 0 is meaningless)
+    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: heading 0 means
+                                      # nothing)
 
 
 def init_state(params) -> State:
@@ -186,7 +188,9 @@ def init_state(params) -> State:
         interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z,
         wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
         delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z,
-        field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z, distance=z,
+        field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64),
+        field_count=jnp.zeros((_compass.FIELD_BINS,), jnp.float64), a=jnp.asarray(params.a, jnp.float64), x=z, y=z,
+        distance=z,
         refine=_refine.init_refine_state(), calibration=_cal.init_calibration_state(params),
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),

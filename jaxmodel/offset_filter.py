@@ -113,7 +113,8 @@ class OffsetFields(NamedTuple):
     ``since_drift`` in the rate filter metres since its rate was last large (``count_since_large_drift``), in
     the steady filter metres since its follow hold last restarted (``follow``, ``restart_hold``);
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
-    LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last accepted."""
+    LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last
+    accepted."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
@@ -422,7 +423,8 @@ def compass_sigma(params, e_c, turn_rate):
 
 
 def shift_rate(fs, change_per_m):
-    """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves opposite."""
+    """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves
+    opposite."""
     # A one-hot update of the packed vector: unpacking and repacking all its fields cost XLA:CPU about a seventh of
     # the default step (bench/bench_run.py, stop 39).
     return OffsetState(fs.vector - jnp.asarray(change_per_m)[..., None] * _BETA_ONEHOT)
