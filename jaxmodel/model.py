@@ -48,9 +48,8 @@ class Config(NamedTuple):
     of jaxmodel/plausibility.py in every mode, F-DELTA by the Kalman filter of
     jaxmodel/offset_filter.py (offset, rate per metre, coloured compass error, turn scale error; the
     heading from its rate-free steady twin while the rate is insignificant), B_E per heading, FIG. 8E before 8F,
-    calibration that captures up to
-    cal_max_correction, reliability 0 before any absolute heading.  robust=False: the seed's
-    first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
+    calibration that captures up to cal_max_correction, reliability 0 before any absolute heading.  robust=False:
+    the seed's first-order filter as first tuned on the project's own simulator (docs/tuning.md), kept for
     comparison; it was chosen against by the scenario matrix (a 1 % tyre mismatch puts it 100°
     off, one pulse burst 10°).  hard_iron: online estimate of the compass offsets X0/Y0 from the
     field seen while turning (jaxmodel/hard_iron.py), started from the parameters' X0/Y0; off by default.
@@ -175,8 +174,7 @@ class Outputs(NamedTuple):
     map_used: jnp.ndarray             # 1.0 if the map heading replaced the compass
     dpp_ratio: jnp.ndarray            # dpp_right / dpp_left
     distance: jnp.ndarray             # m
-    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: heading 0 means
-                                      # nothing)
+    initialized: jnp.ndarray          # 1.0 once a compass sample started the heading (before: heading 0 is meaningless)
 
 
 def init_state(params) -> State:

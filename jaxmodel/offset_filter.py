@@ -149,10 +149,22 @@ class OffsetFields(NamedTuple):
 # vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
 # (docs/tuning.md, "Throughput, stop 22").
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
-_BETA_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("beta")].set(1.0)
-"""1 at ``beta`` in the packed vector, 0 elsewhere (``shift_rate``)."""
-_SINCE_DRIFT_ONEHOT = jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index("since_drift")].set(1.0)
-"""1 at ``since_drift`` in the packed vector, 0 elsewhere (``restart_hold``)."""
+
+
+def _one_hot(field):
+    """1 at ``field`` in the packed vector, 0 elsewhere."""
+    return jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index(field)].set(1.0)
+
+
+_BETA_ONEHOT = _one_hot("beta")
+_SINCE_DRIFT_ONEHOT = _one_hot("since_drift")
+
+
+def _added(fs, one_hot, amount):
+    """``fs`` (an OffsetState) with ``amount`` added to the one field of ``one_hot``: one operation on the packed
+    vector, where unpacking and repacking its fields to change one cost XLA:CPU about a seventh of the default step
+    (bench/bench_run.py, stop 39)."""
+    return OffsetState(fs.vector + jnp.asarray(amount)[..., None] * one_hot)
 
 
 def _covariance(f):
@@ -425,9 +437,7 @@ def compass_sigma(params, e_c, turn_rate):
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves
     opposite."""
-    # A one-hot update of the packed vector: unpacking and repacking all its fields cost XLA:CPU about a seventh of
-    # the default step (bench/bench_run.py, stop 39).
-    return OffsetState(fs.vector - jnp.asarray(change_per_m)[..., None] * _BETA_ONEHOT)
+    return _added(fs, _BETA_ONEHOT, -jnp.asarray(change_per_m))
 
 
 def bound(params, fs, initialized):
@@ -493,7 +503,7 @@ def count_since_large_drift(params, rate_filter, previous, d_t):
     held the steady filter to a rate filter drifting 50 µrad/m for 10 km (highway/hills/105 over 600 s: 7.07 deg,
     2.75 deg with this; docs/tuning.md, stop 30)."""
     since = jnp.where(large_drift(params, rate_filter), 0.0, jnp.minimum(previous.since_drift, NEVER_DRIFTED_M) + d_t)
-    return OffsetState(rate_filter.vector + (since - rate_filter.since_drift)[..., None] * _SINCE_DRIFT_ONEHOT)
+    return _added(rate_filter, _SINCE_DRIFT_ONEHOT, since - rate_filter.since_drift)
 
 
 def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
