@@ -23,6 +23,7 @@ from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
 from . import dequantize as _dequant
+from . import f_delta as _fdelta
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
@@ -301,18 +302,12 @@ def _odometer(params, state, sample, track_table, robust=False):
                 guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
-def _learns_shift(config):
-    """Config.compass_shift applies: the robust complementary mode without Config.hard_iron (the other modes are
-    the matrix's single-sensor references and the Kalman filter, which read the compass as it is)."""
-    return config.robust and config.compass_shift and not config.hard_iron and config.mode == "complementary"
-
-
 def _compass_stage(params, state, sample, config, d_t, alpha):
     """FIG. 8A: compass heading, field magnitude and validity (offsets learned online with
     Config.hard_iron, whose first accepted fit restarts the heading and B_E).  Returns (state,
     hard_iron state, H_C raw (rad), |B| (µT), compass_ok)."""
     if not config.hard_iron:
-        if _learns_shift(config):
+        if _fdelta.learns_shift(config):
             params = params._replace(X0=params.X0 + state.shift.ox, Y0=params.Y0 + state.shift.oy)
         h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
         return state, state.hard_iron, h_c_raw, b_m, compass_ok
@@ -325,129 +320,6 @@ def _compass_stage(params, state, sample, config, d_t, alpha):
                            field_sum=jnp.where(restart, 0.0, state.field_sum),
                            field_count=jnp.where(restart, 0.0, state.field_count))
     return state, hard_iron, h_c_raw, b_m, compass_ok
-
-
-def _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
-                    wheel_heading, initialized, initializing):
-    """FIG. 8E-8H as issue 10 runs them: SDD and F (8E, before the map selector 8F, so SD_N judges
-    the compass), the map selector, and F-DELTA by the rate and steady offset filters of
-    jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  Returns a dict
-    of the new state's fields and the complementary heading EH = H_W + F-DELTA (rad)."""
-    d_t, alpha = odo["d_t"], odo["alpha"]
-    # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
-    # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
-    compass_delta = wrap(h_c - wheel_heading)
-    compass_on = compass_ok & (initialized > 0.5)
-    distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
-    update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
-    history = jnp.where(update_F, jnp.concatenate([compass_delta[None], state.delta_history[:2]]),
-                        state.delta_history)
-    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
-
-    # FIG. 8F: map-heading selector, then DELTA.
-    absolute, delta, map_used = _hf.select_absolute_heading(
-        params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
-        sample.compass_unreliable_area)
-    absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
-
-    # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
-    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
-    predicted_delta = offset.delta
-    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
-    drifting = _offset.drifting(params, offset)
-    drift_significant = _offset.drifting_significantly(params, offset)
-    tilt = _offset.tilt_gain(params, wheel_heading + state.steady.delta)
-    d_lost = _offset.lost_distance(d_t, odo["dt"])
-    offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
-                                          absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
-                                          dt=odo["dt"])
-    offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
-    offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
-    steady_params = _offset.steady_params(params)
-    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
-    steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                               tilt, d_lost, drift_significant, dt=odo["dt"])
-    # The calibration confirms a drift by capturing it (``_calibrate``); without it a large drift starts the hold.
-    steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
-                                   hold_on_drift=not _captures_drift(config))
-    f_delta = shown.delta
-
-    field_sum, field_count = state.field_sum, state.field_count
-    if _learns_shift(config):
-        # A lost filter's restart (F-DELTA moved beyond filter_reacquire_large_deg in one sample) says the compass the
-        # heading started from was disturbed (a garage): so was the B_E learned from it, which the shift learner reads.
-        lost_restart = jnp.abs(wrap(offset.delta - predicted_delta)) > deg(params.filter_reacquire_large_deg)
-        field_sum = jnp.where(lost_restart, 0.0, field_sum)
-        field_count = jnp.where(lost_restart, 0.0, field_count)
-    field_sum, field_count = _compass.learn_field(
-        params, field_sum, field_count, h_c_raw, b_m, b_e, d_t,
-        compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
-    complementary = wrap(wheel_heading + f_delta)
-    shift = state.shift
-    if _learns_shift(config):
-        # The wheels carry EH while the compass is rejected; not while they drift (a tyre mismatch), while the
-        # filter is lost (the heading itself may be wrong), in fast turns (roll) or on the map's heading.
-        learn = (compass_ok & (clean_weight < 0.5) & ~drifting & ~_offset.lost(params, offset.disturbance)
-                 & (jnp.abs(odo["turn_rate"]) < _shift.SHIFT_MAX_TURN_RATE) & ~map_used & ~initializing
-                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5))
-        shift = _shift.update(shift, sample.compass_x - params.X0 - shift.ox, sample.compass_y - params.Y0 - shift.oy,
-                              h_c_raw, complementary, b_e, d_t, learn, deg(params.rotation_deg))
-    return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,
-                factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
-                offset=offset, steady=steady, shown=shown, f_delta=f_delta,
-                complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift,
-                clean_weight=clean_weight, sigma=sigma)
-
-
-def _seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,
-                  initializing):
-    """FIG. 8F, 8E and 8G-8H as first tuned on the project's simulator (Config.robust=False): the map
-    selector, SDD and F, and the seed's first-order F-DELTA; B_E the running mean of |B| (bin 0).
-    ``field`` is (field_sum, field_count) of ``_seed_expected_field``.  Returns the same dict as
-    ``_robust_f_delta``."""
-    d_t = odo["d_t"]
-    field_sum, field_count = field
-    # FIG. 8F (map selector) and DELTA (FIG. 8 block 5).
-    absolute, delta, map_used = _hf.select_absolute_heading(
-        params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
-        sample.compass_unreliable_area)
-    absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
-
-    # FIG. 8 block 6 / 8E / 8E-A: every F_update_distance_m, SDD and F.
-    distance_since_F = state.distance_since_F + jnp.where(absolute_ok, d_t, 0.0)
-    update_F = absolute_ok & (distance_since_F >= params.F_update_distance_m)
-    history = jnp.where(update_F, jnp.concatenate([delta[None], state.delta_history[:2]]), state.delta_history)
-    sdd = jnp.where(update_F, _hf.update_sdd(params, state.sdd, _hf.deviation_of_three(history)), state.sdd)
-    factor = jnp.where(update_F, _hf.time_constant_factor(params, sdd, e_w, e_c), state.factor)
-    distance_since_F = jnp.where(update_F, 0.0, distance_since_F)
-
-    # FIG. 8G / 8H: F-DELTA and EH.
-    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    gain = _hf.filter_gain(params, d_t, factor, distance_filtered)
-    f_delta = jnp.where(initializing, 0.0,
-                        jnp.where(absolute_ok, _hf.update_f_delta(state.f_delta, delta, gain), state.f_delta))
-    return dict(compass_delta=wrap(h_c - wheel_heading), distance_since_F=distance_since_F, history=history, sdd=sdd,
-                factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
-                offset=state.offset, steady=state.steady, f_delta=f_delta,
-                complementary=wrap(wheel_heading + f_delta), field_sum=field_sum, field_count=field_count)
-
-
-def _seed_expected_field(params, state, b_m, compass_ok):
-    """B_E of the seed filter (µT): the parameter when given (> 0), else the running mean of |B| (kept in
-    bin 0).  Returns (B_E, (field_sum, field_count))."""
-    field_sum = state.field_sum.at[0].add(jnp.where(compass_ok, b_m, 0.0))
-    field_count = state.field_count.at[0].add(jnp.where(compass_ok, 1.0, 0.0))
-    learned = safe_div(field_sum[0], field_count[0], fallback=1.0)
-    return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned), (field_sum, field_count)
-
-
-def _captures_drift(config):
-    """Whether a large, significant drift of the rate filter is captured into the left/right ratio (``_calibrate``):
-    the robust complementary mode with the calibration on."""
-    return config.calibration and config.robust and config.mode == "complementary"
 
 
 def _learns_soft_iron(config):
@@ -464,7 +336,7 @@ def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, init
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
         compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
         robust=robust)
-    if _captures_drift(config):
+    if _fdelta.captures_drift(config):
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
         known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
         capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
@@ -504,7 +376,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     if robust:
         b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
     else:
-        b_e, seed_field = _seed_expected_field(params, state, b_m, compass_ok)
+        b_e, seed_field = _fdelta.seed_expected_field(params, state, b_m, compass_ok)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
     h_c_read = h_c_raw
     if _learns_soft_iron(config):
@@ -523,10 +395,10 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # FIG. 8E-8H: SDD, F, the map selector and F-DELTA.
     if robust:
-        fd = _robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
+        fd = _fdelta.robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
                              wheel_heading, initialized, initializing)
     else:
-        fd = _seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok, wheel_heading,
+        fd = _fdelta.seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok, wheel_heading,
                            initialized, initializing)
 
     soft_iron = state.soft_iron
