@@ -155,8 +155,9 @@ def main():
             step_prog = lower.lower_program(closed, [None, None, None])
             pflat = np.ascontiguousarray(eng.flat_params(p))
             n_param = pflat.size
-            for engine, lanes, opt in (("C, one drive at a time", 1, ["-O2"]),
-                                       (f"C, {args.lanes} lanes (-march=native)", args.lanes, ["-O3", "-march=native"])):
+            engines = (("C, one drive at a time", 1, ["-O2"]),
+                       (f"C, {args.lanes} lanes (-march=native)", args.lanes, ["-O3", "-march=native"]))
+            for engine, lanes, opt in engines:
                 step = NATIVE_STEP if lanes == 1 else "odc_step_lanes"
                 source = lower.C_PRELUDE + init_prog.to_c(NATIVE_INIT) + "\n" + (
                     step_prog.to_c(NATIVE_STEP) if lanes == 1 else _lanes_c(step_prog, lit_c, step, lanes))

@@ -26,13 +26,13 @@ def learns_shift(config):
 
 
 def captures_drift(config):
-    """Whether a large, significant drift of the rate filter is captured into the left/right ratio (``model._calibrate``):
-    the robust complementary mode with the calibration on."""
+    """Whether a large, significant drift of the rate filter is captured into the left/right ratio
+    (``model._calibrate``): the robust complementary mode with the calibration on."""
     return config.calibration and config.robust and config.mode == "complementary"
 
 
 def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
-                    wheel_heading, initialized, initializing):
+                   wheel_heading, initialized, initializing):
     """FIG. 8E-8H as issue 10 runs them: SDD and F (8E, before the map selector 8F, so SD_N judges
     the compass), the map selector, and F-DELTA by the rate and steady offset filters of
     jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  Returns a dict
@@ -107,7 +107,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
 
 
 def seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,
-                  initializing):
+                 initializing):
     """FIG. 8F, 8E and 8G-8H as first tuned on the project's simulator (Config.robust=False): the map
     selector, SDD and F, and the seed's first-order F-DELTA; B_E the running mean of |B| (bin 0).
     ``field`` is (field_sum, field_count) of ``seed_expected_field``.  Returns the same dict as
