@@ -11,8 +11,9 @@ folded, common subexpressions shared) is compiled here into a batch loop over dr
 
 Both run on ``bench_run.make_batch`` and are printed beside ``jit(vmap(run))`` of the default and of the seed
 filter (the issue-10 bar is the default at >= 0.8x of the seed filter), with the number of operations of each
-lowered step and the largest difference from the XLA outputs.  An experiment, not an engine of the package: the
-lane renderer below reads the lowered ``Program``'s lines, as ``Program.to_c`` does.
+lowered step and the largest difference from the XLA outputs.  Read the ratios at the default size: on a few
+hundred samples XLA's per-call overhead dominates (8 x 300 made the C 1.09x).  An experiment, not an engine of
+the package: the lane renderer below reads the lowered ``Program``'s lines, as ``Program.to_c`` does.
 """
 
 from __future__ import annotations
@@ -43,13 +44,13 @@ C_FLAGS = ("-std=c99", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math"
 _CTYPE = {"float": "double", "int": "long long", "bool": "int"}
 
 
-def _lanes_c(program, lit_c, name: str, lanes: int) -> str:
+def _lanes_c(program, ref_type, lit_c, name: str, lanes: int) -> str:
     """``program`` (a lowered step) as C over ``lanes`` drives: every local an array over the lanes, every
     operation a loop gcc vectorises; inputs and outputs lane-major (lane l's vector at l * size)."""
     shared = set()  # tables of constants: one copy for every lane
 
     def lit(atom):
-        if type(atom).__name__ == "Ref":
+        if isinstance(atom, ref_type):
             return atom.name if atom.name in shared else f"{atom.name}[l]"
         return lit_c(atom)
 
@@ -66,7 +67,7 @@ def _lanes_c(program, lit_c, name: str, lanes: int) -> str:
         if line.tpl is not None:
             body.append(f"    {t} {line.target}[{lanes}]; {loop} {line.target}[l] = "
                         + line.tpl.c.format(*[lit(a) for a in line.operands]) + ";")
-        elif not any(type(a).__name__ == "Ref" for a in line.operands):
+        elif not any(isinstance(a, ref_type) for a in line.operands):
             shared.add(line.target)
             body.append(f"    static const {t} {line.target}[{len(line.operands)}] = {{"
                         + ", ".join(lit_c(a) for a in line.operands) + "};")
@@ -160,7 +161,7 @@ def main():
             for engine, lanes, opt in engines:
                 step = NATIVE_STEP if lanes == 1 else "odc_step_lanes"
                 source = lower.C_PRELUDE + init_prog.to_c(NATIVE_INIT) + "\n" + (
-                    step_prog.to_c(NATIVE_STEP) if lanes == 1 else _lanes_c(step_prog, lit_c, step, lanes))
+                    step_prog.to_c(NATIVE_STEP) if lanes == 1 else _lanes_c(step_prog, lower.Ref, lit_c, step, lanes))
                 source += _batch_loop(lanes, n_param, n_state, n_in, n_out, step)
                 lib, build_s = _compile(source, tmp, f"{label}_{lanes}", opt)
                 Y = np.zeros((args.drives, args.samples, n_out))

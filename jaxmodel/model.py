@@ -175,7 +175,7 @@ class Outputs(NamedTuple):
     map_used: jnp.ndarray             # 1.0 if the map heading replaced the compass
     dpp_ratio: jnp.ndarray            # dpp_right / dpp_left
     distance: jnp.ndarray             # m
-    initialized: jnp.ndarray          # 1.0 once a compass sample started the heading (before: heading 0 is meaningless)
+    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: meaningless)
 
 
 def init_state(params) -> State:
@@ -395,11 +395,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # FIG. 8E-8H: SDD, F, the map selector and F-DELTA.
     if robust:
-        fd = _fdelta.robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
-                             wheel_heading, initialized, initializing)
+        fd = _fdelta.robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c,
+                                    compass_ok, wheel_heading, initialized, initializing)
     else:
-        fd = _fdelta.seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok, wheel_heading,
-                           initialized, initializing)
+        fd = _fdelta.seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok,
+                                  wheel_heading, initialized, initializing)
 
     soft_iron = state.soft_iron
     if _learns_soft_iron(config):
