@@ -31,6 +31,7 @@ from . import offset_filter as _offset
 from . import plausibility as _guard
 from . import refine as _refine
 from . import soft_iron as _soft
+from . import soft_iron_field as _sfield
 from . import track as _track
 from .angles import safe_div, wrap
 from .packed import computed_once
@@ -150,6 +151,7 @@ class State(NamedTuple):
     shift: _shift.ShiftState      # a shifted hard iron learned while the compass is rejected (Config.compass_shift)
     dequant: _dequant.DequantState  # the wheel heading between pulses (robust modes that turn with the wheels)
     soft_iron: _soft.SoftIronState  # the compass's soft-iron deviation learned from turns (Config.soft_iron)
+    soft_field: _sfield.SoftFieldState  # the soft iron read from the field magnitude per heading (Config.soft_iron)
 
 
 class Outputs(NamedTuple):
@@ -195,6 +197,7 @@ def init_state(params) -> State:
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
         hard_iron=_hard_iron.init_hard_iron_state(params), shift=_shift.init_shift_state(),
         dequant=_dequant.init_dequant_state(), soft_iron=_soft.init_soft_iron_state(),
+        soft_field=_sfield.init_soft_field_state(),
     )
 
 
@@ -380,9 +383,12 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
     h_c_read = h_c_raw
     if _learns_soft_iron(config):
-        # The soft iron's deviation learned from earlier turns taken out of the compass (jaxmodel/soft_iron.py).
-        harmonics = _soft.harmonics(h_c_read)
-        h_c_raw = wrap(h_c_raw - _soft.deviation(state.soft_iron, harmonics))
+        # The soft iron's deviation read from B_E per heading (jaxmodel/soft_iron_field.py), then what the wheels'
+        # turns learned of the rest (jaxmodel/soft_iron.py), taken out of the compass.
+        harmonics = _soft.harmonics(h_c_raw)
+        h_c_field = h_c_raw
+        h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics))
+        h_c_raw = wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics))
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
     # FIG. 8B: wheel heading; the first valid compass sample starts it (odometer mode too).
@@ -410,6 +416,14 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                  & (params.filter_scale_sigma0 <= 0.0))
         soft_iron = _soft.update(soft_iron, wrap(h_c_read - wheel_heading), harmonics, alpha, d_t, clean,
                                  deg(params.filter_compass_sigma_deg) / fd["sigma"])
+    soft_field = state.soft_field
+    if _learns_soft_iron(config):
+        # The sums start again with B_E per heading (a restart empties its bins) and when the offsets shift.
+        restart = jnp.sum(fd["field_count"]) < 0.5 * jnp.sum(state.field_count)
+        if _fdelta.learns_shift(config):
+            restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
+        soft_field = _sfield.update(soft_field, h_c_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0),
+                                    restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
@@ -463,7 +477,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
         x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
         guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron, shift=fd.get("shift", state.shift),
-        dequant=dequant, soft_iron=soft_iron,
+        dequant=dequant, soft_iron=soft_iron, soft_field=soft_field,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,

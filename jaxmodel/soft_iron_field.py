@@ -1,0 +1,155 @@
+"""The compass's soft-iron deviation read from the field's magnitude per heading, without the wheels.
+
+A linear distortion S of the horizontal field (the vehicle's steel, magnetised by the earth's field) turns and scales
+what the compass reads, and the two are tied.  For m = S b with |b| = B at raw angle A, m x dm/dA = det(S) B^2, so
+the measured angle phi turns at dphi/dA = det(S) B^2 / |m|^2: where the field reads strong, the compass turns slowly.
+To first order in S - I, with
+
+    ln|m(phi)| = c0 + a2 cos 2 phi + b2 sin 2 phi,
+
+the deviation phi - A is the conjugate harmonic, -a2 sin 2 phi + b2 cos 2 phi; a symmetric S = [[1 + e1, e2],
+[e2, 1 - e1]] gives a2 = e1, b2 = e2 (and the deviation e2 cos 2A - e1 sin 2A of jaxmodel/soft_iron.py's docstring).
+US 4,734,863 FIG. 8C measures the expected magnitude B_E "for each of those known headings" (claim 13) and FIG. 8A
+applies a deviation table from the compass's calibration; here the one is read from the other while driving, the
+way a magnetometer is calibrated from its ellipse.  On the matrix's soft-iron drives a least-squares fit of ln|B| over
+one drive's samples gives (a2, b2) within 0.002-0.007 of (e1, e2) in urban, mixed and parking (docs/tuning.md, stop 41).
+
+Estimator: a recursive least-squares regression of ln|B| on (1, cos A, sin A, cos 2A, sin 2A), A the compass heading
+before any soft-iron correction, the first harmonic a nuisance (a hard-iron residual, a grade shows cos A), each sample
+weighted by the metres it drove, over samples with a valid compass within FIELD_GATE of B_E per heading (anomalies and
+standstill teach nothing), ridge prior RIDGE_M on the harmonics.  The sums start again when B_E per heading does (a
+hard-iron restart, a lost filter's restart) and when the shift learner moves the offsets.  Applied only when
+
+* the drive's headings span enough of the circle: the mean resultant lengths |E[exp(iA)]| and |E[exp(2iA)]| both
+  below COVER (a highway seen along one arc cannot tell the second harmonic from the first or from the terrain), and
+* (a2, b2) is significant: its Mahalanobis length z against the covariance (residual variance) x CORRELATION_M x
+  (normal matrix)^-1 (terrain and anomalies make the residuals correlated over ~100 m), soft-thresholded by Z0: the
+  deviation applied is scaled by max(z - Z0, 0) / z.
+
+The wheels' learner (jaxmodel/soft_iron.py) then regresses what is left.  Where it falls short: the dip of a level
+compass on a slope also changes the magnitude, and on a route whose grade depends on its direction that shows as a
+second harmonic (real there, but not the same elsewhere): the significance and coverage tests are what keep it out.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from .angles import safe_sqrt
+from .packed import computed_once, packed_state
+
+RIDGE_M = 200.0
+"""Ridge prior on the harmonics' coefficients (m of samples at a unit regressor)."""
+FIELD_GATE = 0.08
+"""Samples whose |ln(|B| / B_E)| is beyond this (B_E per heading) are not used: anomalies, a parked truck."""
+COVER = 0.65
+"""Applied only when |E[exp(iA)]| and |E[exp(2iA)]| over the samples are both below this."""
+CORRELATION_M = 100.0
+"""Metres over which the residuals of ln|B| are taken as correlated (the significance test's sample size)."""
+Z0 = 3.0
+"""Mahalanobis length of (a2, b2) by which the applied deviation is soft-thresholded."""
+
+_K = 5  # regressors: 1, cos A, sin A, cos 2A, sin 2A (the second harmonic last: its block of the Cholesky factor)
+_PAIRS = [(i, j) for i in range(_K) for j in range(i, _K)]
+
+
+class SoftFieldFields(NamedTuple):
+    """Sums over the used samples, weighted by metres: n_ij of x_i x_j (i <= j), b_i of x_i ln|B|, ll of ln|B|^2;
+    x = (1, cos A, sin A, cos 2A, sin 2A)."""
+
+    n00: jnp.ndarray
+    n01: jnp.ndarray
+    n02: jnp.ndarray
+    n03: jnp.ndarray
+    n04: jnp.ndarray
+    n11: jnp.ndarray
+    n12: jnp.ndarray
+    n13: jnp.ndarray
+    n14: jnp.ndarray
+    n22: jnp.ndarray
+    n23: jnp.ndarray
+    n24: jnp.ndarray
+    n33: jnp.ndarray
+    n34: jnp.ndarray
+    n44: jnp.ndarray
+    b0: jnp.ndarray
+    b1: jnp.ndarray
+    b2: jnp.ndarray
+    b3: jnp.ndarray
+    b4: jnp.ndarray
+    ll: jnp.ndarray
+
+
+SoftFieldState = packed_state(SoftFieldFields, "SoftFieldState",
+                              "Sums of the regression of ln|B| on the heading's harmonics (soft iron from the field).")
+
+
+def init_soft_field_state() -> SoftFieldState:
+    return SoftFieldState.pack(SoftFieldFields(*([jnp.zeros((), jnp.float64)] * len(SoftFieldFields._fields))))
+
+
+def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
+    """One sample: ``heading`` the compass heading A before any soft-iron correction (rad), ``harmonics_of_a`` its
+    (sin 2A, cos 2A), |B| ``b_m`` and B_E per heading ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the
+    compass valid and the vehicle moving, ``reset`` (bool) start the sums again first.  Returns the state."""
+    # A sample not in use may carry anything (a heading of 1e308): it must not reach the sums, not even times 0.
+    s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a)
+    heading = jnp.where(use, heading, 0.0)
+    x = (jnp.ones_like(s2), jnp.cos(heading), jnp.sin(heading), c2, s2)
+    safe_m = jnp.where(use, b_m, 1.0)
+    near = jnp.abs(jnp.log(safe_m / jnp.where(use, b_e, 1.0))) < FIELD_GATE
+    w = jnp.where(use & near, d_t, 0.0)
+    ln_b = jnp.log(safe_m)
+    terms = [x[i] * x[j] for i, j in _PAIRS] + [x[i] * ln_b for i in range(_K)] + [ln_b * ln_b]
+    vector = jnp.where(computed_once(reset)[..., None], 0.0, sf.vector)
+    return SoftFieldState(vector + w[..., None] * jnp.stack(terms, axis=-1))
+
+
+def _cholesky_solve(f):
+    """The ridge-regularised normal equations by a Cholesky factor written out (5 x 5; the native FMU lowers it).
+    Returns (c, y, L): coefficients, the forward-solved right-hand side and the factor (lists)."""
+    m = [[None] * _K for _ in range(_K)]
+    for i, j in _PAIRS:
+        m[i][j] = m[j][i] = getattr(f, f"n{i}{j}") + (RIDGE_M if i == j and i > 0 else 0.0)
+    m[0][0] = m[0][0] + 1e-6
+    low = [[None] * _K for _ in range(_K)]
+    for j in range(_K):
+        low[j][j] = safe_sqrt(m[j][j] - sum((low[j][k] * low[j][k] for k in range(j)), 0.0), floor=1e-30)
+        for i in range(j + 1, _K):
+            low[i][j] = (m[i][j] - sum((low[i][k] * low[j][k] for k in range(j)), 0.0)) / low[j][j]
+    rhs = [f.b0, f.b1, f.b2, f.b3, f.b4]
+    y = []
+    for i in range(_K):
+        y.append((rhs[i] - sum((low[i][k] * y[k] for k in range(i)), 0.0)) / low[i][i])
+    c = [None] * _K
+    for i in reversed(range(_K)):
+        c[i] = (y[i] - sum((low[k][i] * c[k] for k in range(i + 1, _K)), 0.0)) / low[i][i]
+    return c, y, rhs
+
+
+def coefficients(sf):
+    """(p, q) (rad): the deviation p sin 2A + q cos 2A to subtract from the compass heading A, (p, q) = (-a2, b2)
+    scaled by the significance test's soft threshold, zero while the headings do not cover the circle."""
+    f = sf.fields()
+    c, y, rhs = _cholesky_solve(f)
+    # Residual sum of squares at the ridge solution: ll - 2 c.b + c.N.c = ll - c.b - c.R.c (N + R = L L^T).
+    rss = f.ll - sum(ci * bi for ci, bi in zip(c, rhs)) - RIDGE_M * sum(ci * ci for ci in c[1:])
+    weight = f.n00
+    variance = jnp.maximum(rss, 0.0) / jnp.maximum(weight, 1.0) + 1e-8
+    # (a2, b2)'s inverse covariance is L22 L22^T / (variance x CORRELATION_M), L22 the factor's last block, and
+    # L22^T (a2, b2) = (y3, y4): so z^2 is (y3^2 + y4^2) over the scale.
+    z = jnp.sqrt((y[3] * y[3] + y[4] * y[4]) / (variance * CORRELATION_M) + 1e-30)
+    keep = jnp.maximum(z - Z0, 0.0) / z
+    spread = jnp.maximum(f.n01 * f.n01 + f.n02 * f.n02, f.n03 * f.n03 + f.n04 * f.n04)
+    covered = spread < (COVER * COVER) * weight * weight
+    keep = jnp.where(covered & (weight > 0.0), keep, 0.0)
+    return -keep * c[3], keep * c[4]
+
+
+def deviation(sf, harmonics_of_a):
+    """The deviation (rad) at a compass heading A given as ``soft_iron.harmonics(A)``; to subtract from H_C."""
+    p, q = coefficients(sf)
+    s, c = harmonics_of_a
+    return p * s + q * c
