@@ -58,8 +58,8 @@ class Config(NamedTuple):
     compass_shift (robust, without hard_iron): a shifted hard iron found from the wheels' heading while the
     filter rejects the compass (jaxmodel/compass_shift.py).  dequantize (robust, every mode but 'compass'): the
     counts' quantization taken out of the heading output (jaxmodel/dequantize.py).  soft_iron (robust, every mode but
-    'compass'): the compass's soft-iron deviation learned from the wheels' turns and taken out of H_C
-    (jaxmodel/soft_iron.py).
+    'compass'): the compass's soft-iron deviation read from the field's magnitude per heading
+    (jaxmodel/soft_iron_field.py), the rest learned from the wheels' turns (jaxmodel/soft_iron.py), taken out of H_C.
     """
 
     mode: str = "complementary"

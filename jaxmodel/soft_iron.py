@@ -19,7 +19,8 @@ standstill teach nothing).  Since the deviation is linear in (s, c) its high-pas
 of the high-passed regressors, so the regression estimates (p, q) of DELTA's p s + q c directly, with a ridge prior
 of SOFT_IRON_PRIOR_M metres of turning that says nothing (a drive that does not turn learns nothing).  The compass
 heading is then read as H_C - (p s + q c), the amplitude soft-thresholded by SOFT_IRON_FLOOR.  The regression reads
-the compass before this correction, so there is no loop.
+the compass before this correction, so there is no loop.  Since stop 41 the compass it reads is already corrected by
+the deviation read from the field's magnitude (jaxmodel/soft_iron_field.py): this learner regresses what is left.
 
 Where it falls short: turns and grades fake a second harmonic of 0.1-0.8 deg on drives without a soft iron (a level
 compass on a slope reads the grade times the dip, and the grade a road shows depends on its direction: (grad h . u)
