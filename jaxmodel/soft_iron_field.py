@@ -109,7 +109,7 @@ def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
 
 def _cholesky_solve(f):
     """The ridge-regularised normal equations by a Cholesky factor written out (5 x 5; the native FMU lowers it).
-    Returns (c, y, L): coefficients, the forward-solved right-hand side and the factor (lists)."""
+    Returns (c, y, rhs) as lists: the coefficients, the forward-solved right-hand side L^-1 b and b."""
     m = [[None] * _K for _ in range(_K)]
     for i, j in _PAIRS:
         m[i][j] = m[j][i] = getattr(f, f"n{i}{j}") + (RIDGE_M if i == j and i > 0 else 0.0)
@@ -144,7 +144,7 @@ def coefficients(sf):
     keep = jnp.maximum(z - Z0, 0.0) / z
     spread = jnp.maximum(f.n01 * f.n01 + f.n02 * f.n02, f.n03 * f.n03 + f.n04 * f.n04)
     covered = spread < (COVER * COVER) * weight * weight
-    keep = jnp.where(covered & (weight > 0.0), keep, 0.0)
+    keep = jnp.where(covered, keep, 0.0)  # (no sample: 0 < 0 is not covered)
     return -keep * c[3], keep * c[4]
 
 
