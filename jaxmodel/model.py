@@ -375,6 +375,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     d_t, alpha = odo["d_t"], odo["alpha"]
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
+    field_weight_before = jnp.sum(state.field_count)  # B_E's bins, before a restart may empty them
     state, hard_iron, h_c_raw, b_m, compass_ok = _compass_stage(params, state, sample, config, d_t, alpha)
     if robust:
         b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
@@ -418,8 +419,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                                  deg(params.filter_compass_sigma_deg) / fd["sigma"])
     soft_field = state.soft_field
     if _learns_soft_iron(config):
-        # The sums start again with B_E per heading (a restart empties its bins) and when the offsets shift.
-        restart = jnp.sum(fd["field_count"]) < 0.5 * jnp.sum(state.field_count)
+        # The sums start again with B_E per heading (a hard-iron or a lost filter's restart empties its bins) and
+        # when the offsets shift.
+        restart = jnp.sum(fd["field_count"]) < 0.5 * field_weight_before
         if _fdelta.learns_shift(config):
             restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
         soft_field = _sfield.update(soft_field, h_c_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0),

@@ -155,3 +155,20 @@ def test_estimate_cli_hard_iron_on_runs_the_online_estimate(tmp_path, capsys):
         got = np.genfromtxt(out, delimiter=",", names=True)["heading_deg"]
         np.testing.assert_allclose(got, (expected + 180.0) % 360.0 - 180.0, atol=1e-6)
     assert np.max(np.abs(_wrapped_deg(got - np.degrees(np.asarray(jm.run(params, inputs).heading))))) > 10.0
+
+
+def test_the_field_soft_iron_sums_restart_with_the_hard_iron_fit(parking_drive):
+    """The first accepted fit moves the offsets by 30 µT and empties B_E's bins: the magnitudes learned around the
+    wrong offsets must not stay in the soft-iron regression of jaxmodel/soft_iron_field.py (its sums restart)."""
+    inputs, _, _ = parking_drive
+    params = jm.make_params()
+
+    def body(state, sample):
+        state, _ = jm.step(params, state, sample, ON)
+        return state, (state.soft_field.n00, state.hard_iron.accepted)
+
+    _, (metres, accepted) = jax.jit(lambda: jax.lax.scan(body, jm.init_state(params), inputs))()
+    metres, accepted = np.asarray(metres), np.asarray(accepted)
+    first = int(np.argmax(accepted > 0.5))
+    assert 0 < first and metres[first - 1] > 20.0  # it had learned around the wrong offsets
+    assert metres[first] < 1.0 and np.all(np.diff(metres[first:]) >= 0.0)
