@@ -388,7 +388,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         # turns learned of the rest (jaxmodel/soft_iron.py), taken out of the compass.
         harmonics = _soft.harmonics(h_c_raw)
         h_c_field = h_c_raw
-        h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics))
+        # Less what the deviation table's second harmonic took out already (a calibrated compass).
+        table = _sfield.table_deviation(params.deviation_deg, deg(params.variation_deg - params.rotation_deg))
+        h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics, table))
         h_c_raw = wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics))
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 

@@ -26,7 +26,10 @@ hard-iron restart, a lost filter's restart) and when the shift learner moves the
   (normal matrix)^-1 (terrain and anomalies make the residuals correlated over ~100 m), soft-thresholded by Z0: the
   deviation applied is scaled by max(z - Z0, 0) / z.
 
-The wheels' learner (jaxmodel/soft_iron.py) then regresses what is left.  Where it falls short: the dip of a level
+A calibrated compass's deviation table (``deviation_deg``, identification/compass_fit.py) has taken its second
+harmonic out of H_C already (``table_deviation``): the ridge prior and the significance test are centred on it and
+only the difference is applied, so the soft iron is not taken out twice (stop 42: mixed/soft_iron/103 with its exact
+table 0.63 deg, taken out twice 1.36 deg).  The wheels' learner (jaxmodel/soft_iron.py) then regresses what is left.  Where it falls short: the dip of a level
 compass on a slope also changes the magnitude, and on a route whose grade depends on its direction that shows as a
 second harmonic (real there, but not the same elsewhere): the significance and coverage tests are what keep it out.
 """
@@ -107,9 +110,10 @@ def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
     return SoftFieldState(vector + w[..., None] * jnp.stack(terms, axis=-1))
 
 
-def _cholesky_solve(f):
-    """The ridge-regularised normal equations by a Cholesky factor written out (5 x 5; the native FMU lowers it).
-    Returns (c, y, rhs) as lists: the coefficients, the forward-solved right-hand side L^-1 b and b."""
+def _cholesky_solve(f, centre):
+    """The normal equations with the ridge prior RIDGE_M centred at (0, 0, 0, a2_0, b2_0) = ``centre``, by a Cholesky
+    factor written out (5 x 5; the native FMU lowers it).  Returns (c, y, low) as lists: the coefficients, the
+    forward-solved right-hand side y = L^-1 (b + R c_0) (so L^T c = y) and the factor L."""
     m = [[None] * _K for _ in range(_K)]
     for i, j in _PAIRS:
         m[i][j] = m[j][i] = getattr(f, f"n{i}{j}") + (RIDGE_M if i == j and i > 0 else 0.0)
@@ -119,37 +123,67 @@ def _cholesky_solve(f):
         low[j][j] = safe_sqrt(m[j][j] - sum((low[j][k] * low[j][k] for k in range(j)), 0.0), floor=1e-30)
         for i in range(j + 1, _K):
             low[i][j] = (m[i][j] - sum((low[i][k] * low[j][k] for k in range(j)), 0.0)) / low[j][j]
-    rhs = [f.b0, f.b1, f.b2, f.b3, f.b4]
+    rhs = [f.b0, f.b1, f.b2, f.b3 + RIDGE_M * centre[0], f.b4 + RIDGE_M * centre[1]]
     y = []
     for i in range(_K):
         y.append((rhs[i] - sum((low[i][k] * y[k] for k in range(i)), 0.0)) / low[i][i])
     c = [None] * _K
     for i in reversed(range(_K)):
         c[i] = (y[i] - sum((low[k][i] * c[k] for k in range(i + 1, _K)), 0.0)) / low[i][i]
-    return c, y, rhs
+    return c, y, low
 
 
-def coefficients(sf):
-    """(p, q) (rad): the deviation p sin 2A + q cos 2A to subtract from the compass heading A, (p, q) = (-a2, b2)
-    scaled by the significance test's soft threshold, zero while the headings do not cover the circle."""
+NO_TABLE = (0.0, 0.0)
+"""``coefficients``' ``taken_out`` for a compass whose deviation table has no second harmonic."""
+
+
+def coefficients(sf, taken_out=NO_TABLE):
+    """(p, q) (rad): the deviation p sin 2A + q cos 2A still to subtract from the compass heading A.
+
+    The field's magnitude reads the whole soft iron, (p, q) = (-a2, b2); ``taken_out`` = (p_0, q_0) is what the
+    deviation table already took out of H_C (``table_deviation``).  What is left, (p - p_0, q - q_0), is scaled by the
+    significance test's soft threshold and is zero while the headings do not cover the circle: without evidence
+    the table stands (a calibrated compass is not corrected twice).  The ridge prior is centred on the table."""
     f = sf.fields()
-    c, y, rhs = _cholesky_solve(f)
-    # Residual sum of squares at the ridge solution: ll - 2 c.b + c.N.c = ll - c.b - c.R.c (N + R = L L^T).
-    rss = f.ll - sum(ci * bi for ci, bi in zip(c, rhs)) - RIDGE_M * sum(ci * ci for ci in c[1:])
+    centre = (-taken_out[0], taken_out[1])  # (a2_0, b2_0)
+    c, y, low = _cholesky_solve(f, centre)
+    # Residual sum of squares at the ridge solution, with N + R = L L^T and (N + R) c = b + R c_0:
+    # ll - 2 c.b + c.N.c = ll - c.b - c.R.(c - c_0).
+    rss = (f.ll - sum(ci * bi for ci, bi in zip(c, (f.b0, f.b1, f.b2, f.b3, f.b4)))
+           - RIDGE_M * (sum(ci * ci for ci in c[1:]) - c[3] * centre[0] - c[4] * centre[1]))
     weight = f.n00
     variance = jnp.maximum(rss, 0.0) / jnp.maximum(weight, 1.0) + 1e-8
     # (a2, b2)'s inverse covariance is L22 L22^T / (variance x CORRELATION_M), L22 the factor's last block, and
-    # L22^T (a2, b2) = (y3, y4): so z^2 is (y3^2 + y4^2) over the scale.
-    z = jnp.sqrt((y[3] * y[3] + y[4] * y[4]) / (variance * CORRELATION_M) + 1e-30)
+    # L22^T (a2 - a2_0, b2 - b2_0) = (y3, y4) - L22^T (a2_0, b2_0) (rows 3-4 of L^T c = y): z^2 is its square over
+    # the scale.
+    u3 = y[3] - low[3][3] * centre[0] - low[4][3] * centre[1]
+    u4 = y[4] - low[4][4] * centre[1]
+    z = jnp.sqrt((u3 * u3 + u4 * u4) / (variance * CORRELATION_M) + 1e-30)
     keep = jnp.maximum(z - Z0, 0.0) / z
     spread = jnp.maximum(f.n01 * f.n01 + f.n02 * f.n02, f.n03 * f.n03 + f.n04 * f.n04)
     covered = spread < (COVER * COVER) * weight * weight
     keep = jnp.where(covered, keep, 0.0)  # (no sample: 0 < 0 is not covered)
-    return -keep * c[3], keep * c[4]
+    return -keep * (c[3] - centre[0]), keep * (c[4] - centre[1])
 
 
-def deviation(sf, harmonics_of_a):
-    """The deviation (rad) at a compass heading A given as ``soft_iron.harmonics(A)``; to subtract from H_C."""
-    p, q = coefficients(sf)
+def deviation(sf, harmonics_of_a, taken_out=NO_TABLE):
+    """The deviation (rad) at a compass heading A given as ``soft_iron.harmonics(A)``, beyond what the deviation
+    table took out (``taken_out``, see ``coefficients``); to subtract from H_C."""
+    p, q = coefficients(sf, taken_out)
     s, c = harmonics_of_a
     return p * s + q * c
+
+
+def table_deviation(deviation_deg, offset):
+    """(p_0, q_0) (rad): the deviation p_0 sin 2A + q_0 cos 2A the 36-entry deviation table (deg) took out of H_C
+    already, A = raw + ``offset`` (rad; V - R of FIG. 8A).  H_C adds deviation(raw) (US 4,734,863 FIG. 8A block 4),
+    i.e. takes out -deviation; its second harmonic d_s sin 2 raw + d_c cos 2 raw is the soft iron's (Archibald
+    Smith's D and E, identification/compass_fit.py), least squares over the table's entries, turned by 2 offset
+    into A's frame.  A table without a second harmonic gives (0, 0)."""
+    table = jnp.radians(jnp.asarray(deviation_deg, jnp.float64))
+    n = table.shape[-1]
+    raw = jnp.arange(n) * (2.0 * jnp.pi / n)
+    d_s = (2.0 / n) * jnp.sum(table * jnp.sin(2.0 * raw), axis=-1)
+    d_c = (2.0 / n) * jnp.sum(table * jnp.cos(2.0 * raw), axis=-1)
+    c2, s2 = jnp.cos(2.0 * offset), jnp.sin(2.0 * offset)
+    return -(d_s * c2 + d_c * s2), -(d_c * c2 - d_s * s2)
