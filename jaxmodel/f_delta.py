@@ -80,6 +80,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count
+    lost_restart = jnp.zeros_like(d_t, dtype=bool)
     if learns_shift(config):
         # A lost filter's restart (F-DELTA moved beyond filter_reacquire_large_deg in one sample) says the compass the
         # heading started from was disturbed (a garage): so was the B_E learned from it, which the shift learner reads.
@@ -103,7 +104,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                 factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
                 offset=offset, steady=steady, shown=shown, f_delta=f_delta,
                 complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift,
-                clean_weight=clean_weight, sigma=sigma)
+                clean_weight=clean_weight, sigma=sigma, field_restart=lost_restart)
 
 
 def seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,

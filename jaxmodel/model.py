@@ -308,12 +308,12 @@ def _odometer(params, state, sample, track_table, robust=False):
 def _compass_stage(params, state, sample, config, d_t, alpha):
     """FIG. 8A: compass heading, field magnitude and validity (offsets learned online with
     Config.hard_iron, whose first accepted fit restarts the heading and B_E).  Returns (state,
-    hard_iron state, H_C raw (rad), |B| (µT), compass_ok)."""
+    hard_iron state, H_C raw (rad), |B| (µT), compass_ok, restart: this sample's fit restarted them)."""
     if not config.hard_iron:
         if _fdelta.learns_shift(config):
             params = params._replace(X0=params.X0 + state.shift.ox, Y0=params.Y0 + state.shift.oy)
         h_c_raw, b_m, compass_ok = _compass.compass_heading(params, sample.compass_x, sample.compass_y)
-        return state, state.hard_iron, h_c_raw, b_m, compass_ok
+        return state, state.hard_iron, h_c_raw, b_m, compass_ok, jnp.zeros_like(compass_ok)
     hard_iron, restart = _hard_iron.update(params, state.hard_iron, sample.compass_x, sample.compass_y, d_t,
                                            alpha, sample.compass_unreliable_area < 0.5)
     x0, y0 = _hard_iron.offsets(hard_iron)
@@ -322,7 +322,7 @@ def _compass_stage(params, state, sample, config, d_t, alpha):
     state = state._replace(initialized=jnp.where(restart, 0.0, state.initialized),
                            field_sum=jnp.where(restart, 0.0, state.field_sum),
                            field_count=jnp.where(restart, 0.0, state.field_count))
-    return state, hard_iron, h_c_raw, b_m, compass_ok
+    return state, hard_iron, h_c_raw, b_m, compass_ok, restart
 
 
 def _learns_soft_iron(config):
@@ -375,8 +375,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     d_t, alpha = odo["d_t"], odo["alpha"]
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
-    field_weight_before = jnp.sum(state.field_count)  # B_E's bins, before a restart may empty them
-    state, hard_iron, h_c_raw, b_m, compass_ok = _compass_stage(params, state, sample, config, d_t, alpha)
+    state, hard_iron, h_c_raw, b_m, compass_ok, hard_iron_restart = _compass_stage(params, state, sample, config,
+                                                                                  d_t, alpha)
     if robust:
         b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
     else:
@@ -423,7 +423,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     if _learns_soft_iron(config):
         # The sums start again with B_E per heading (a hard-iron or a lost filter's restart empties its bins) and
         # when the offsets shift.
-        restart = jnp.sum(fd["field_count"]) < 0.5 * field_weight_before
+        restart = hard_iron_restart | fd["field_restart"]
         if _fdelta.learns_shift(config):
             restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
         soft_field = _sfield.update(soft_field, h_c_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0),
