@@ -59,7 +59,8 @@ class Config(NamedTuple):
     filter rejects the compass (jaxmodel/compass_shift.py).  dequantize (robust, every mode but 'compass'): the
     counts' quantization taken out of the heading output (jaxmodel/dequantize.py).  soft_iron (robust, every mode but
     'compass'): the compass's soft-iron deviation read from the field's magnitude per heading
-    (jaxmodel/soft_iron_field.py), the rest learned from the wheels' turns (jaxmodel/soft_iron.py), taken out of H_C.
+    (jaxmodel/soft_iron_field.py), less what a calibrated deviation table took out already, the rest learned from
+    the wheels' turns (jaxmodel/soft_iron.py), taken out of H_C.
     """
 
     mode: str = "complementary"
