@@ -94,10 +94,14 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     shift = state.shift
     if learns_shift(config):
         # The wheels carry EH while the compass is rejected; not while they drift (a tyre mismatch), while the
-        # filter is lost (the heading itself may be wrong), in fast turns (roll) or on the map's heading.
+        # filter is lost (the heading itself may be wrong), in fast turns (roll) or on the map's heading.  Nor during
+        # the follow hold after a drift (``offset_filter.follow``): EH is then the rate filter's, and carries what the
+        # wheels drifted before the calibration caught it (held-out mixed/mismatch_2.5/110 learned a 2-µT "shift"
+        # from it: 1.08 -> 3.28 deg).
+        following = steady.since_drift < params.filter_follow_hold_m
         learn = (compass_ok & (clean_weight < 0.5) & ~drifting & ~_offset.lost(params, offset.disturbance)
                  & (jnp.abs(odo["turn_rate"]) < _shift.SHIFT_MAX_TURN_RATE) & ~map_used & ~initializing
-                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5))
+                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5) & ~following)
         shift = _shift.update(shift, sample.compass_x - params.X0 - shift.ox, sample.compass_y - params.Y0 - shift.oy,
                               h_c_raw, complementary, b_e, d_t, learn, deg(params.rotation_deg))
     return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,

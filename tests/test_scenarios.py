@@ -163,6 +163,20 @@ def test_a_shifted_hard_iron_is_learned_from_the_wheels_heading():
 
 
 @pytest.mark.slow
+def test_a_captured_tyre_mismatch_is_not_learned_as_a_shifted_hard_iron():
+    """mixed/mismatch_2.5/110 (held-out seed; no hard iron): the calibration captures the 2.5 % mismatch within the
+    first minute, and for the follow hold after it EH is the rate filter's, with what the wheels drifted before the
+    capture in it.  The shift learner reads EH as the wheels' heading, so it must not learn then: at stop 41 it moved
+    the offsets by 2 µT there and the heading was 3.28 deg RMSE after the first minute, 1.08 deg without it."""
+    drive = sc.make_drive("mixed", "mismatch_2.5", 110)
+    inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source=drive.name).inputs)
+    params = jm.make_params(drive.params)
+    final, out = jm.run_from(params, jm.init_state(params), inputs, jm.Config())
+    assert float(final.shift.ox) == 0.0 and float(final.shift.oy) == 0.0
+    assert _rmse(_after_first_minute(_err_deg(out, drive), drive)) < 1.5
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario, seed, turned", [("highway", 101, 139), ("mixed", 101, -119)])
 def test_a_drive_started_in_a_garage_finds_its_heading(scenario, seed, turned):
     """The garage's steel turns the first 37-53 s of compass samples by ``turned`` deg (and scales the field by
