@@ -29,7 +29,9 @@ hard-iron restart, a lost filter's restart) and when the shift learner moves the
 A calibrated compass's deviation table (``deviation_deg``, identification/compass_fit.py) has taken its second
 harmonic out of H_C already (``table_deviation``): the ridge prior and the significance test are centred on it and
 only the difference is applied, so the soft iron is not taken out twice (stop 42: mixed/soft_iron/103 with its exact
-table 0.63 deg, taken out twice 1.36 deg).  The wheels' learner (jaxmodel/soft_iron.py) then regresses what is left.  Where it falls short: the dip of a level
+table 0.63 deg, taken out twice 1.36 deg).
+
+The wheels' learner (jaxmodel/soft_iron.py) then regresses what is left.  Where it falls short: the dip of a level
 compass on a slope also changes the magnitude, and on a route whose grade depends on its direction that shows as a
 second harmonic (real there, but not the same elsewhere): the significance and coverage tests are what keep it out.
 """

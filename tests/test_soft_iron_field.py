@@ -44,8 +44,8 @@ def _wrapped(a):
 
 def test_area_law_the_deviation_is_the_magnitude_conjugate_harmonic():
     """The module's premise, checked on the map itself: for S = [[1 + e1, e2], [e2, 1 - e1]] the measured angle
-    turns at det(S) B^2 / |m|^2 (exactly), and to first order (the second, e^2 ~ 1e-3, is the tolerance) the deviation phi - A is e2 cos 2 phi - e1 sin 2 phi
-    while ln|m| is ln B + e1 cos 2 phi + e2 sin 2 phi."""
+    turns at det(S) B^2 / |m|^2 (exactly), and to first order (the second, e^2 ~ 1e-3, is the tolerance) the
+    deviation phi - A is e2 cos 2 phi - e1 sin 2 phi while ln|m| is ln B + e1 cos 2 phi + e2 sin 2 phi."""
     e1, e2 = 0.03, -0.015
     a = np.linspace(0.0, 2 * np.pi, 2001)
     phi, mag = _readings(e1, e2, a)
