@@ -38,13 +38,14 @@ FIT = "T_F,a"
 @pytest.fixture(scope="module")
 def ray_cluster():
     """A local cluster for this module only: shut down after it, so the tests that follow compile
-    their XLA programs without Ray's threads in the process (CI once crashed in XLA's compiler there)."""
+    their XLA programs without Ray's threads in the process (CI once crashed in XLA's compiler there).  The workers
+    keep the suite's XLA_FLAGS (conftest: the backend optimisation off, which compiles faster) beside one thread."""
     from identification.fleet_ray import XLA_ONE_THREAD
 
     started = not ray.is_initialized()
     if started:
         ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": {"XLA_FLAGS": XLA_ONE_THREAD}})
+                 runtime_env={"env_vars": {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {XLA_ONE_THREAD}".strip()}})
     yield
     if started:
         ray.shutdown()
