@@ -17,6 +17,7 @@ The schema, ``read_table`` and ``write_drive`` live in ``drive_files`` and are r
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -250,19 +251,28 @@ def _pad_last(x: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([x, np.full(n - len(x), x[-1], dtype=np.float64)]) if n > len(x) else x
 
 
-def stack_drives(drives: list[Drive]):
+def bucket_length(n: int) -> int:
+    """n rounded up to a multiple of 2**(floor(log2 n) - 3) (at least 64): padding <= 12.5 %, and few distinct
+    lengths, so that one compiled program (and the persistent compilation cache's entry) serves many logs."""
+    n = max(int(n), 1)
+    q = 2 ** max(int(math.floor(math.log2(n))) - 3, 6)
+    return int(math.ceil(n / q) * q)
+
+
+def stack_drives(drives: list[Drive], length: int | None = None):
     """Batch drives for ``jaxmodel.run_batch``: (Inputs of (batch, N) float64 arrays, mask (batch, N)).
 
-    Shorter drives are padded to the longest: time goes on with the drive's last time step,
-    counters stay unchanged (no distance), compass, map heading and fix values repeat the last
-    sample, and the map/fix flags are 0.  mask is 1.0 on real samples, 0.0 on padding.
+    Shorter drives are padded to the longest (or to ``length`` samples, if that is longer): time
+    goes on with the drive's last time step, counters stay unchanged (no distance), compass, map
+    heading and fix values repeat the last sample, and the map/fix flags are 0.  mask is 1.0 on
+    real samples, 0.0 on padding.
     """
     import jaxmodel
 
     drives = list(drives)
     if not drives:
         raise ValueError("stack_drives needs at least one drive")
-    n_max = max(len(d.inputs.time_s) for d in drives)
+    n_max = max([len(d.inputs.time_s) for d in drives] + [int(length or 0)])
     fields = {k: [] for k in jaxmodel.Inputs._fields}
     mask = np.zeros((len(drives), n_max), dtype=np.float64)
     for b, d in enumerate(drives):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .drive_log import Drive, _format_of, read_drive, wrap_deg, write_drive
+from .drive_log import Drive, _format_of, bucket_length, read_drive, stack_drives, wrap_deg, write_drive
 from .errors import OdoCompassError
 
 OUTPUT_COLUMNS = ("time_s", "heading_deg", "wheel_heading_deg", "compass_heading_deg", "x_m", "y_m", "speed_mps",
@@ -43,8 +43,12 @@ def estimate_drive(params, drive: Drive, config=None) -> dict[str, np.ndarray]:
     if not jax.config.jax_enable_x64:
         raise OdoCompassError("odocompass needs 64-bit JAX: call jax.config.update('jax_enable_x64', True)")
     config = jaxmodel.DEFAULT_CONFIG if config is None else config
-    inputs = jaxmodel.Inputs(*(jnp.asarray(np.asarray(v, dtype=np.float64)) for v in drive.inputs))
-    out = jax.device_get(jaxmodel.run(params, inputs, config))
+    # Padded to a length bucket and cut back: the scan is causal, so the drive's own outputs do not change, and
+    # logs of nearby lengths share one compiled program (compiling is most of a short estimate; compile_cache).
+    n = len(drive.inputs.time_s)
+    stacked, _ = stack_drives([drive], length=bucket_length(n))
+    inputs = jaxmodel.Inputs(*(jnp.asarray(v[0]) for v in stacked))
+    out = jax.device_get(jax.tree_util.tree_map(lambda v: v[:n], jaxmodel.run(params, inputs, config)))
 
     def deg(v):
         return wrap_deg(np.rad2deg(np.asarray(v, dtype=np.float64)))

@@ -33,6 +33,7 @@ import numpy as np
 
 from . import loss as L
 from . import report as R
+from .drive_log import bucket_length  # noqa: F401 (the fleet's length buckets; it lives beside the padding rules)
 
 EVAL_FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance",
                "compass_heading", "compass_valid", "odometer_valid")
@@ -60,13 +61,6 @@ class FitOptions:
     decorrelation_s: float = L.DEFAULT_DECORRELATION_S
     direction: str = "gauss-newton"     # fleet_optimize.DIRECTIONS
     warm_increment_s: float = 5.0       # > 0: odometer stage first fitted over this increment (continuation)
-
-
-def bucket_length(n: int) -> int:
-    """n rounded up to a multiple of 2**(floor(log2 n) - 3) (at least 64): padding <= 12.5 %."""
-    n = max(int(n), 1)
-    q = 2 ** max(int(math.floor(math.log2(n))) - 3, 6)
-    return int(math.ceil(n / q) * q)
 
 
 def pad_batch(inputs, mask, ref, n: int):

@@ -45,6 +45,28 @@ def params_file(tmp_path):
     return path
 
 
+def test_estimate_pads_to_a_length_bucket_without_changing_the_drive(rear_params):
+    """estimate_drive runs the drive padded to ``bucket_length`` samples and cuts the outputs back: equal to
+    jaxmodel.run on the drive itself, and two logs of nearby lengths share one compiled program."""
+    import jax
+    import jax.numpy as jnp
+
+    from identification.drive_log import bucket_length
+
+    drive = drive_from_columns(drive_columns(n=150), source="short.csv")
+    assert bucket_length(150) == bucket_length(157) == 192
+    inputs = jaxmodel.Inputs(*(jnp.asarray(np.asarray(v, np.float64)) for v in drive.inputs))
+    plain = jax.device_get(jaxmodel.run(rear_params, inputs))
+    cols = estimate_drive(rear_params, drive)
+    assert len(cols["heading_deg"]) == 150
+    np.testing.assert_allclose(np.radians(cols["heading_deg"]), np.angle(np.exp(1j * np.asarray(plain.heading))),
+                               rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(cols["x_m"], np.asarray(plain.x), rtol=0.0, atol=1e-9)
+    compiled = jaxmodel.run._cache_size()
+    estimate_drive(rear_params, drive_from_columns(drive_columns(n=157, seed=1), source="longer.csv"))
+    assert jaxmodel.run._cache_size() == compiled  # the same bucket: no new program
+
+
 def run_cli(argv, capsys):
     rc = cli_main(argv)
     captured = capsys.readouterr()
