@@ -12,7 +12,7 @@ import pytest
 import jaxmodel as jm
 from identification import scenario_eval as ev
 from identification import scenarios as sc
-from identification.drive_log import drive_from_columns
+from identification.drive_log import bucket_length, drive_from_columns, stack_drives
 from jaxmodel import compass as jc
 from jaxmodel import plausibility
 from jaxmodel.angles import wrap
@@ -21,20 +21,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import bench_outside_matrix as outside_matrix  # noqa: E402
 
 
-RUN_BUCKET = 1024
-"""``_run`` pads a drive's inputs to a multiple of this many samples.  The matrix's 15-minute drives differ by a few
-samples (8964-8976), and each length compiled its own program (~5.5 s of the ~6 s a drive took here); padded, one
-program per configuration serves the module."""
-
-
 def _run(drive, overrides=None, **config):
-    """jaxmodel.run on the drive with its vehicle's parameters, then ``overrides``.  The inputs are padded at the end
-    (their last sample repeated, which does not move the vehicle) to a multiple of RUN_BUCKET samples and the outputs
-    cut back: the scan is causal, so no output of the drive's own samples changes."""
-    inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source=drive.name).inputs)
-    n = inputs.time_s.shape[0]
-    pad = -n % RUN_BUCKET
-    inputs = jax.tree_util.tree_map(lambda v: jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]), inputs)
+    """jaxmodel.run on the drive with its vehicle's parameters, then ``overrides``.  As in ``estimate_drive``, the
+    inputs are padded to their length bucket and the outputs cut back (the scan is causal: no output of the drive's
+    own samples changes).  The matrix's 15-minute drives differ by a few samples (8964-8976), and each length
+    compiled its own program (~5.5 s of the ~6 s a drive took); padded, one program per configuration serves the
+    module (this file alone 315 -> 166 s)."""
+    log = drive_from_columns(drive.columns, source=drive.name)
+    n = len(log.inputs.time_s)
+    stacked, _ = stack_drives([log], length=bucket_length(n))
+    inputs = jm.Inputs(*(jnp.asarray(v[0]) for v in stacked))
     out = jm.run(jm.make_params({**drive.params, **(overrides or {})}), inputs, jm.Config(**config))
     return jax.tree_util.tree_map(lambda v: v[:n], out)
 
