@@ -43,15 +43,17 @@ def stack_params(param_dicts: list[Mapping[str, Any]], overrides: Mapping[str, A
 
 
 def stacked_inputs(drives):
-    """(Inputs with fixes, Inputs without fixes, mask, truth heading (B, N), time (B, N)) for the drives."""
+    """(Inputs with fixes, Inputs without fixes, mask, truth heading (B, N), time (B, N)) for the drives; N is the
+    ``bucket_length`` of the longest (mask 0 beyond each drive's end)."""
     import jax.numpy as jnp
 
     import jaxmodel as jm
 
-    from .drive_log import drive_from_columns, stack_drives
+    from .drive_log import bucket_length, drive_from_columns, stack_drives
 
     ds = [drive_from_columns(d.columns, source=d.name) for d in drives]
-    inputs, mask = stack_drives(ds)
+    # Padded to the length bucket of the longest: batches of nearby lengths share one compiled program.
+    inputs, mask = stack_drives(ds, length=bucket_length(max(len(d.inputs.time_s) for d in ds)))
     n = mask.shape[1]
     truth = np.zeros_like(mask)
     for b, d in enumerate(drives):
