@@ -33,7 +33,7 @@ import numpy as np
 
 from . import loss as L
 from . import report as R
-from .drive_log import bucket_length  # noqa: F401 (the fleet's length buckets; it lives beside the padding rules)
+from .drive_log import bucket_length  # the fleet's length buckets live beside the padding rules
 
 EVAL_FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance",
                "compass_heading", "compass_valid", "odometer_valid")
