@@ -29,6 +29,21 @@ class EstimatorBug(RuntimeError):
     """The estimator produced a non-finite output: a defect in jaxmodel, not in the user's input."""
 
 
+def run_padded(params, drive: Drive, config):
+    """``jaxmodel.run`` on one drive, its inputs padded to ``drive_log.bucket_length`` and the outputs cut back to
+    the drive's n samples: an ``Outputs`` of (n,) arrays, equal to the unpadded run (the scan is causal).  Logs of
+    nearby lengths so share one compiled program (compiling is most of a short estimate; compile_cache)."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    n = len(drive.inputs.time_s)
+    stacked, _ = stack_drives([drive], length=bucket_length(n))
+    inputs = jaxmodel.Inputs(*(jnp.asarray(v[0]) for v in stacked))
+    return jax.tree_util.tree_map(lambda v: v[:n], jaxmodel.run(params, inputs, config))
+
+
 def estimate_drive(params, drive: Drive, config=None) -> dict[str, np.ndarray]:
     """Run the estimator over one drive; returns {column: numpy array} in OUTPUT_COLUMNS order.
 
@@ -36,19 +51,13 @@ def estimate_drive(params, drive: Drive, config=None) -> dict[str, np.ndarray]:
     any output is NaN or infinite (the model must skip bad samples, never propagate them).
     """
     import jax
-    import jax.numpy as jnp
 
     import jaxmodel
 
     if not jax.config.jax_enable_x64:
         raise OdoCompassError("odocompass needs 64-bit JAX: call jax.config.update('jax_enable_x64', True)")
     config = jaxmodel.DEFAULT_CONFIG if config is None else config
-    # Padded to a length bucket and cut back: the scan is causal, so the drive's own outputs do not change, and
-    # logs of nearby lengths share one compiled program (compiling is most of a short estimate; compile_cache).
-    n = len(drive.inputs.time_s)
-    stacked, _ = stack_drives([drive], length=bucket_length(n))
-    inputs = jaxmodel.Inputs(*(jnp.asarray(v[0]) for v in stacked))
-    out = jax.device_get(jax.tree_util.tree_map(lambda v: v[:n], jaxmodel.run(params, inputs, config)))
+    out = jax.device_get(run_padded(params, drive, config))
 
     def deg(v):
         return wrap_deg(np.rad2deg(np.asarray(v, dtype=np.float64)))

@@ -12,7 +12,8 @@ import pytest
 import jaxmodel as jm
 from identification import scenario_eval as ev
 from identification import scenarios as sc
-from identification.drive_log import bucket_length, drive_from_columns, stack_drives
+from identification.drive_log import drive_from_columns
+from identification.estimate import run_padded
 from jaxmodel import compass as jc
 from jaxmodel import plausibility
 from jaxmodel.angles import wrap
@@ -22,17 +23,11 @@ import bench_outside_matrix as outside_matrix  # noqa: E402
 
 
 def _run(drive, overrides=None, **config):
-    """jaxmodel.run on the drive with its vehicle's parameters, then ``overrides``.  As in ``estimate_drive``, the
-    inputs are padded to their length bucket and the outputs cut back (the scan is causal: no output of the drive's
-    own samples changes).  The matrix's 15-minute drives differ by a few samples (8964-8976), and each length
-    compiled its own program (~5.5 s of the ~6 s a drive took); padded, one program per configuration serves the
-    module (this file alone 315 -> 166 s)."""
+    """jaxmodel.run on the drive with its vehicle's parameters, then ``overrides``, padded to its length bucket as
+    ``estimate_drive`` is (``estimate.run_padded``): the matrix's 15-minute drives differ by a few samples
+    (8964-8976), and unpadded each length compiled its own program (~5.5 s of the ~6 s a drive took)."""
     log = drive_from_columns(drive.columns, source=drive.name)
-    n = len(log.inputs.time_s)
-    stacked, _ = stack_drives([log], length=bucket_length(n))
-    inputs = jm.Inputs(*(jnp.asarray(v[0]) for v in stacked))
-    out = jm.run(jm.make_params({**drive.params, **(overrides or {})}), inputs, jm.Config(**config))
-    return jax.tree_util.tree_map(lambda v: v[:n], out)
+    return run_padded(jm.make_params({**drive.params, **(overrides or {})}), log, jm.Config(**config))
 
 
 def _err_deg(out, drive):
