@@ -247,8 +247,30 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
 # batching
 
 
-def _pad_last(x: np.ndarray, n: int) -> np.ndarray:
-    return np.concatenate([x, np.full(n - len(x), x[-1], dtype=np.float64)]) if n > len(x) else x
+def pad_inputs(inputs, n: int):
+    """Inputs of (..., n0) arrays extended to (..., n) samples (unchanged if n <= n0), the padding rules of a batch:
+    time goes on with each row's last time step, counters stay unchanged (no distance), compass, map heading and fix
+    values repeat the last sample, and the map/fix flags are 0."""
+    import jaxmodel
+
+    out = {}
+    for k in jaxmodel.Inputs._fields:
+        v = np.asarray(getattr(inputs, k), dtype=np.float64)
+        n0 = v.shape[-1]
+        pad = n - n0
+        if pad <= 0:
+            out[k] = v
+            continue
+        steps = np.arange(1, pad + 1, dtype=np.float64)
+        if k == "time_s":
+            step = v[..., -1:] - v[..., -2:-1] if n0 > 1 else np.ones_like(v[..., -1:])
+            ext = v[..., -1:] + step * steps
+        elif k in ("map_valid", "fix_valid"):
+            ext = np.zeros(v.shape[:-1] + (pad,))
+        else:
+            ext = np.repeat(v[..., -1:], pad, axis=-1)
+        out[k] = np.concatenate([v, ext], axis=-1)
+    return jaxmodel.Inputs(**out)
 
 
 def bucket_length(n: int) -> int:
@@ -262,10 +284,8 @@ def bucket_length(n: int) -> int:
 def stack_drives(drives: list[Drive], length: int | None = None):
     """Batch drives for ``jaxmodel.run_batch``: (Inputs of (batch, N) float64 arrays, mask (batch, N)).
 
-    Shorter drives are padded to the longest (or to ``length`` samples, if that is longer): time
-    goes on with the drive's last time step, counters stay unchanged (no distance), compass, map
-    heading and fix values repeat the last sample, and the map/fix flags are 0.  mask is 1.0 on
-    real samples, 0.0 on padding.
+    Shorter drives are padded to the longest (or to ``length`` samples, if that is longer) by
+    ``pad_inputs``.  mask is 1.0 on real samples, 0.0 on padding.
     """
     import jaxmodel
 
@@ -273,25 +293,11 @@ def stack_drives(drives: list[Drive], length: int | None = None):
     if not drives:
         raise ValueError("stack_drives needs at least one drive")
     n_max = max([len(d.inputs.time_s) for d in drives] + [int(length or 0)])
-    fields = {k: [] for k in jaxmodel.Inputs._fields}
     mask = np.zeros((len(drives), n_max), dtype=np.float64)
     for b, d in enumerate(drives):
-        inp = d.inputs
-        n = len(inp.time_s)
-        mask[b, :n] = 1.0
-        pad = n_max - n
-        t = np.asarray(inp.time_s, dtype=np.float64)
-        step = float(t[-1] - t[-2]) if n > 1 else 1.0
-        for k in jaxmodel.Inputs._fields:
-            v = np.asarray(getattr(inp, k), dtype=np.float64)
-            if k == "time_s":
-                v = np.concatenate([t, t[-1] + step * np.arange(1, pad + 1, dtype=np.float64)])
-            elif k in ("map_valid", "fix_valid"):
-                v = np.concatenate([v, np.zeros(pad)])
-            else:
-                v = _pad_last(v, n_max)
-            fields[k].append(v)
-    inputs = jaxmodel.Inputs(**{k: np.stack(v) for k, v in fields.items()})
+        mask[b, :len(d.inputs.time_s)] = 1.0
+    padded = [pad_inputs(d.inputs, n_max) for d in drives]
+    inputs = jaxmodel.Inputs(*(np.stack(v) for v in zip(*padded)))
     return inputs, mask
 
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from . import loss as L
 from . import report as R
-from .drive_log import bucket_length  # the fleet's length buckets live beside the padding rules
+from .drive_log import bucket_length, pad_inputs  # the length buckets and padding rules live in drive_log
 
 EVAL_FIELDS = ("heading", "wheel_heading", "curvature", "effective_track", "speed", "a", "distance",
                "compass_heading", "compass_valid", "odometer_valid")
@@ -64,26 +64,12 @@ class FitOptions:
 
 
 def pad_batch(inputs, mask, ref, n: int):
-    """Extend (B, n0) arrays to (B, n) with the padding rules of ``drive_log.stack_drives``."""
-    import jaxmodel
-
-    n0 = mask.shape[-1]
-    pad = n - n0
+    """Extend (B, n0) arrays to (B, n): the inputs by ``drive_log.pad_inputs``, mask and ref with zeros."""
+    pad = n - mask.shape[-1]
     if pad <= 0:
         return inputs, mask, ref
-    out = {}
-    for k in jaxmodel.Inputs._fields:
-        v = np.asarray(getattr(inputs, k), dtype=np.float64)
-        if k == "time_s":
-            step = v[:, -1:] - v[:, -2:-1] if n0 > 1 else np.ones((v.shape[0], 1))
-            ext = v[:, -1:] + step * np.arange(1, pad + 1, dtype=np.float64)[None, :]
-        elif k in ("map_valid", "fix_valid"):
-            ext = np.zeros((v.shape[0], pad))
-        else:
-            ext = np.repeat(v[:, -1:], pad, axis=1)
-        out[k] = np.concatenate([v, ext], axis=1)
     zeros = np.zeros((mask.shape[0], pad))
-    return jaxmodel.Inputs(**out), np.concatenate([mask, zeros], axis=1), np.concatenate([ref, zeros], axis=1)
+    return pad_inputs(inputs, n), np.concatenate([mask, zeros], axis=1), np.concatenate([ref, zeros], axis=1)
 
 
 def stack_vehicles(groups: list[list], n: int | None = None):

@@ -489,6 +489,22 @@ def test_stack_drives_pads_with_a_standing_vehicle():
     assert np.array_equal(ref_mask, mask)
 
 
+def test_padding_a_stacked_batch_equals_stacking_to_that_length():
+    """fleet_fit.pad_batch (arrays) and stack_drives (drives) pad by the one rule of drive_log.pad_inputs."""
+    from identification.fleet_fit import pad_batch
+
+    drives = [drive_from_columns(synthetic_columns(n=n, seed=n), source=str(n)) for n in (30, 45)]
+    inputs, mask = stack_drives(drives)
+    ref = np.ones_like(mask)
+    padded, padded_mask, padded_ref = pad_batch(inputs, mask, ref, 64)
+    direct, direct_mask = stack_drives(drives, length=64)
+    for k in jaxmodel.Inputs._fields:
+        assert_same(getattr(padded, k), getattr(direct, k), k)
+    assert np.array_equal(padded_mask, direct_mask)
+    assert padded_ref.shape == (2, 64) and np.all(padded_ref[:, 45:] == 0.0)
+    assert pad_batch(inputs, mask, ref, 45)[0] is inputs  # nothing to pad
+
+
 def test_stack_drives_single_sample_and_missing_reference():
     cols = synthetic_columns(n=1)
     d1 = drive_from_columns(cols)
