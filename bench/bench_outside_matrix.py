@@ -26,11 +26,16 @@ stuck_wheel_long    the same for 10 s at 60 % of the drive (stop 32)
 coarse_pulses       every third pulse counted (a ring of fewer teeth: 4-9 cm per pulse; the vehicle's dpp x 3)
 compass_noise       1 µT more white noise on each compass axis (a cheaper magnetometer: ~3 deg per sample)
 weak_field          the compass reads half the field, with the sensor's own 0.25 µT of noise (a high latitude)
+counters_held_5     both wheel counters updated every 5th sample and repeated in between (counters sent at 2 Hz, logged
+                    at 10 Hz); stop 44
+counters_held_10    the same, every 10th sample (1 Hz)
 ==================  ===================================================================================
 
 The four from time_jitter on were added at stop 31, after the default's constants were frozen, as judges only.
-The last three were added at stop 37; coarse_pulses (seeds 101/104) chose the form of model.INTERVAL_MIN_PULSES,
-so it judges on other seeds only (107/108: docs/benchmarks.md).
+compass_noise, weak_field and coarse_pulses were added at stop 37; coarse_pulses (seeds 101/104) chose the form of
+model.INTERVAL_MIN_PULSES, so it judges on other seeds only (107/108: docs/benchmarks.md).  The two counters_held
+rows were added at stop 44 and chose the form of ``model.COUNTS_HOLD_MAX_S`` (seeds 107/108): they judge on other
+seeds only.
 
 ``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).
 
@@ -109,6 +114,14 @@ def _spurious_pulses(drive, per_minute=2.0):
     for key, wheel in (("left_pulses", left_wheel), ("right_pulses", ~left_wheel)):
         counter = sc.unwrap_counter(drive.columns[key]) + np.cumsum(hits & wheel)
         drive.columns[key] = counter % 65536
+
+
+def _counters_held(drive, every):
+    """Both counters updated on every ``every``-th sample only and repeated in between (a logger faster than the
+    counters' own messages; an FMU master stepping faster than the sensor)."""
+    for key in ("left_pulses", "right_pulses"):
+        counts = np.asarray(drive.columns[key])
+        drive.columns[key] = counts[(np.arange(counts.size) // every) * every]
 
 
 def _keep_rows(drive, keep):
@@ -193,7 +206,9 @@ DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compas
                 "time_jitter": _time_jitter, "dropped_rows": _dropped_rows, "counter_reset": _counter_reset,
                 "stuck_wheel": _stuck_wheel,
                 "stuck_wheel_long": lambda drive: _stuck_wheel(drive, at=0.6, duration_s=10.0),
-                "coarse_pulses": _coarse_pulses, "compass_noise": _compass_noise, "weak_field": _weak_field}
+                "coarse_pulses": _coarse_pulses, "compass_noise": _compass_noise, "weak_field": _weak_field,
+                "counters_held_5": lambda drive: _counters_held(drive, 5),
+                "counters_held_10": lambda drive: _counters_held(drive, 10)}
 
 
 def main():

@@ -40,6 +40,18 @@ static int category_index(const char *category)
     return -1;
 }
 
+/* The logger's message is a printf format: the text itself is passed with '%' doubled and no arguments, so hosts
+ * that print it without formatting (ctypes callbacks) see it whole.  out holds at least 2 * strlen(in) + 1. */
+static void escape_percent(const char *in, char *out, size_t size)
+{
+    char *end = out + size - 2;
+    for (; *in && out < end; in++) {
+        if (*in == '%') *out++ = '%';
+        *out++ = *in;
+    }
+    *out = '\0';
+}
+
 /* fmi2OK messages need logging on and their category (or logAll) enabled; warnings and errors
  * are always reported. */
 void odc_log(odc_inst *c, fmi2Status status, const char *category, const char *fmt, ...)
@@ -53,17 +65,7 @@ void odc_log(odc_inst *c, fmi2Status status, const char *category, const char *f
     va_start(ap, fmt);
     vsnprintf(c->text, sizeof c->text, fmt, ap);
     va_end(ap);
-    /* the logger's message is a printf format: pass the text itself with '%' doubled and no
-     * arguments, so hosts that print it without formatting (ctypes callbacks) see it whole */
-    {
-        const char *in = c->text;
-        char *out = c->msg, *end = c->msg + sizeof c->msg - 2;
-        for (; *in && out < end; in++) {
-            if (*in == '%') *out++ = '%';
-            *out++ = *in;
-        }
-        *out = '\0';
-    }
+    escape_percent(c->text, c->msg, sizeof c->msg);
     c->cb.logger(c->cb.componentEnvironment, c->name, status, category, c->msg);
 }
 
@@ -179,12 +181,14 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (!functions || !functions->logger) return NULL;
     if (fmuType != fmi2CoSimulation) {
         functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError",
-                          "%s", "OdoCompass supports co-simulation only");
+                          "OdoCompass supports co-simulation only");
         return NULL;
     }
     if (!fmuGUID || strcmp(fmuGUID, ODC_GUID) != 0) {
-        functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError",
-                          "GUID %s does not match this binary (%s)", fmuGUID ? fmuGUID : "(null)", ODC_GUID);
+        char text[512], msg[1024];  /* formatted here as odc_log does: there is no instance yet */
+        snprintf(text, sizeof text, "GUID %s does not match this binary (%s)", fmuGUID ? fmuGUID : "(null)", ODC_GUID);
+        escape_percent(text, msg, sizeof msg);
+        functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError", msg);
         return NULL;
     }
     c = functions->allocateMemory ? (odc_inst *)functions->allocateMemory(1, sizeof *c) : (odc_inst *)calloc(1, sizeof *c);

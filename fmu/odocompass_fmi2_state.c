@@ -99,10 +99,27 @@ fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *state)
     return fmi2OK;
 }
 
+/* Every field that indexes or is read as a string is checked, so a damaged state (a file edited or truncated by
+ * hand) is refused here instead of crashing a later fmi2DoStep. */
+static int saved_fields_ok(const odc_saved *saved)
+{
+    const odc_dyn *d = &saved->d;
+    int i;
+    if (saved->magic != STATE_MAGIC || saved->size != sizeof *saved || !memchr(saved->guid, '\0', sizeof saved->guid) ||
+        strcmp(saved->guid, ODC_GUID) != 0)
+        return 0;
+    if (d->cur < 0 || d->cur > 1 || d->phase < PH_INSTANTIATED || d->phase > PH_TERMINATED)
+        return 0;
+    if (d->config < -1 || d->config >= ODC_N_CONFIGS || (d->config < 0 && d->phase == PH_STEPPING))
+        return 0;
+    for (i = 0; i < ODC_N_STR; i++)
+        if (!memchr(d->str[i], '\0', ODC_STRLEN)) return 0;
+    return 1;
+}
+
 static int state_ok(odc_inst *c, const odc_saved *saved, const char *fn)
 {
-    if (!saved || saved->magic != STATE_MAGIC || saved->size != sizeof *saved || strcmp(saved->guid, ODC_GUID) != 0 ||
-        saved->d.cur < 0 || saved->d.cur > 1 || saved->d.config >= ODC_N_CONFIGS) {
+    if (!saved || !saved_fields_ok(saved)) {
         odc_log(c, fmi2Error, "logStatusError", "%s: not a state of this FMU", fn);
         return 0;
     }

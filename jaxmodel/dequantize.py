@@ -66,17 +66,18 @@ def pulse_heading(dpp, track):
     return dpp / track
 
 
-def update(ds, alpha, dt, moving, pulse, restart):
+def update(ds, alpha, dt, moving, pulse, restart, dt_moved=None):
     """One sample: returns (new state, epsilon (rad), to add to the mode's heading).
 
     alpha: this sample's wheel turn (rad, FIG. 8B's increment of H_W); dt: its time step (s, 0 when unusable);
     moving: the wheels travelled (bool); pulse: the heading of one pulse of dD (rad, ``pulse_heading``); restart:
-    H_W was (re)started this sample or has not started (bool).
+    H_W was (re)started this sample or has not started (bool); dt_moved: the time (s) a moving sample's counts
+    cover (longer than dt after held counters, ``model.COUNTS_HOLD_MAX_S``; dt if None).
     """
     f = ds.fields()
     quantum_sigma = QUANTIZATION_SIGMA * pulse
     gap = dt > DEQUANT_HORIZON_S
-    dt_turn = jnp.where(moving & ~gap, dt, 0.0)
+    dt_turn = jnp.where(moving & ~gap, dt if dt_moved is None else dt_moved, 0.0)
     # Predict: the estimate turns at omega, H_W by alpha.
     e = f.epsilon + f.omega * dt_turn - alpha
     p00 = f.p00 + dt_turn * (2.0 * f.p01 + dt_turn * f.p11)

@@ -273,10 +273,11 @@ def map_noise(params, distance, dt=None):
 
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
                 fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
-                enabled=True):
+                enabled=True, dt_counts=None, held=False):
     """One sample.  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
-    dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp;
+    dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp; dt_counts: the time
+    it covers (since the counts last changed; dt if None); held: the counts repeat the last ones (no news of speed);
     alpha: wheel heading change of the sample (rad); wheel_heading: H_W after it;
     compass_heading: H_C (valid where compass_ok); e_c: compass error bound (rad);
     map_heading, map_used: the street heading chosen by the map-heading selector (FIG. 8F) and
@@ -295,13 +296,15 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     # (the noise models are for normal sampling; an absurd time step must not overflow Q).
     dt = jnp.clip(dt, 0.0, MAX_DT_S)
     time_ok = dt > 0.0
-    v_meas = safe_div(distance, dt)
-    dv_max = params.kf_max_accel * dt + safe_div(2.0 * dpp, dt)
+    dt_counts = dt if dt_counts is None else jnp.clip(dt_counts, 0.0, MAX_DT_S)
+    v_meas = safe_div(distance, dt_counts)
+    dv_max = params.kf_max_accel * dt_counts + safe_div(2.0 * dpp, dt_counts)
     speed_ok = odometer_ok & (jnp.abs(v_meas - ks.speed) <= dv_max)
-    v_slew = ks.speed + jnp.clip(v_meas - ks.speed, -params.kf_max_accel * dt, params.kf_max_accel * dt)
-    speed = jnp.where(time_ok, jnp.where(speed_ok, v_meas, v_slew), ks.speed)
-    dist_used = jnp.where(time_ok & ~speed_ok, v_slew * dt, distance)
-    course_limit = deg(params.kf_max_yaw_rate_deg_s) * dt + 4.0 * dpp / track
+    dv_slew = params.kf_max_accel * dt_counts
+    v_slew = ks.speed + jnp.clip(v_meas - ks.speed, -dv_slew, dv_slew)
+    speed = jnp.where(time_ok & ~held, jnp.where(speed_ok, v_meas, v_slew), ks.speed)
+    dist_used = jnp.where(time_ok & ~speed_ok & ~held, v_slew * dt_counts, distance)
+    course_limit = deg(params.kf_max_yaw_rate_deg_s) * dt_counts + 4.0 * dpp / track
     course_ok = jnp.abs(alpha) <= course_limit
 
     # 2. DF(V).

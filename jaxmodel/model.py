@@ -118,6 +118,7 @@ class State(NamedTuple):
     last_time: jnp.ndarray        # s
     last_left: jnp.ndarray        # counts
     last_right: jnp.ndarray       # counts
+    last_count_time: jnp.ndarray  # s, time of the last sample whose counts changed (held counters)
     speed: jnp.ndarray            # m/s
     window_dD: jnp.ndarray        # exponentially windowed sum of dD, m
     window_AD: jnp.ndarray        # exponentially windowed sum of |AD|, m
@@ -186,8 +187,8 @@ def init_state(params) -> State:
     z = jnp.zeros((), jnp.float64)
     one = jnp.ones((), jnp.float64)
     return State(
-        started=z, initialized=z, last_time=z, last_left=z, last_right=z, speed=z, window_dD=z, window_AD=z,
-        interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z,
+        started=z, initialized=z, last_time=z, last_left=z, last_right=z, last_count_time=z, speed=z, window_dD=z,
+        window_AD=z, interval_dD=z, interval_signed_dD=z, interval_AD=z, interval_turn=z,
         wheel_heading=z, compass_heading=z, f_delta=z, heading=z, e_w=z, e_c=z, sdd=z, factor=one,
         delta_history=jnp.zeros((3,), jnp.float64), distance_since_F=z, distance_filtered=z,
         field_sum=jnp.zeros((_compass.FIELD_BINS,), jnp.float64),
@@ -209,6 +210,16 @@ interval was chosen with 1.4-3-cm pulses (33-70 per interval).  With 7-cm pulses
 odometer-only heading drifted 13.3 deg RMS on parking/baseline/101 (1.0 deg at 2.3 cm), 1.2 deg with 32 pulses
 (stop 37, docs/tuning.md); the matrix's vehicles (dpp <= 3 cm) keep their 1-m interval.  The robust modes only:
 the seed filter keeps the seed's."""
+
+COUNTS_HOLD_MAX_S = 1.0
+"""A logger faster than the wheel counters' own messages repeats their last counts: a sample whose counts did not
+change within this long (s) of their last change says nothing new (the guard and the speed wait), and the next change
+covers the whole time since the last one.  Longer, unchanged counts are a standstill.  Without it, counters updated
+every 5th sample of a 10-Hz log put the default 17-41 deg RMS off and odometer-only 40-130 deg (stop 44: the guard
+took each update for a burst at five times the speed)."""
+
+HOLD_MIN_PULSES = 2.0
+"""Unchanged counts are held only where the wheels' recent speed would have counted this many pulses in the sample."""
 
 RECALIBRATION_HOLD = 1e-4
 """Relative change of the ratio in one calibration update beyond which the steady F-DELTA's follow hold restarts."""
@@ -233,14 +244,29 @@ def _odometer(params, state, sample, track_table, robust=False):
     right = jnp.where(counts_finite, sample.right_pulses, state.last_right)
     n_left = _decode_counter(left, state.last_left, params.counter_modulus)
     n_right = _decode_counter(right, state.last_right, params.counter_modulus)
+    # Held counters (COUNTS_HOLD_MAX_S, robust modes): the interval a change of the counts covers, and the samples
+    # that repeat them.  The seed filter keeps the seed's per-sample interval.
+    changed = counts_finite & ((n_left != 0.0) | (n_right != 0.0))
+    since = sample.time_s - state.last_count_time
+    dt_counts, held = dt, jnp.zeros_like(changed)
+    if robust:
+        dt_counts = jnp.where(time_ok, jnp.clip(since, dt, jnp.maximum(dt, COUNTS_HOLD_MAX_S)), 0.0)
+        # Only where the wheels' recent speed would have counted HOLD_MIN_PULSES in the sample: fewer unchanged
+        # counts are a slow wheel's quantization.
+        g = state.guard.fields()
+        pulse = jnp.maximum(state.calibration.dpp_left, state.calibration.dpp_right)
+        expected = jnp.maximum(jnp.abs(g.rate_left), jnp.abs(g.rate_right)) * dt / pulse
+        held = time_ok & counts_finite & ~changed & (since < COUNTS_HOLD_MAX_S) & (expected >= HOLD_MIN_PULSES)
+    last_count_time = jnp.where(jnp.isfinite(sample.time_s) & (~started | (changed & time_ok)), sample.time_s,
+                                state.last_count_time)
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
     dpp = jnp.maximum(dpp_left, dpp_right)  # the longer pulse: the counts' resolution
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
     if robust:
         d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, guard_state = _guard.guard(
-            params, state.guard, n_left * dpp_left, n_right * dpp_right, dt, time_ok, counts_finite & started,
-            dpp_left, dpp_right)
+            params, state.guard, n_left * dpp_left, n_right * dpp_right, dt_counts, time_ok, counts_finite & started,
+            dpp_left, dpp_right, held)
         n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
         n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
         # odometer_valid reports counter faults (a wheel beyond max_speed, non-finite counts), as
@@ -262,7 +288,12 @@ def _odometer(params, state, sample, track_table, robust=False):
     dD = d_left - d_right
     AD = 0.5 * (d_left + d_right)
     d_t = jnp.abs(AD)
-    speed = jnp.where(time_ok, safe_div(d_t, dt), state.speed)
+    # (Robust modes: an interval so short that one pulse in it is beyond max_speed measures no speed, e.g. an FMU
+    # master's 1-us step to an input event; its distance counts, the speed stays.)
+    measured = time_ok & ~held
+    if robust:
+        measured = measured & (dpp <= params.max_speed * dt_counts)
+    speed = jnp.where(measured, safe_div(d_t, dt_counts), state.speed)
 
     # The ``curvature`` output (and the refinement of a): dD/AD over an exponential window of curvature_window_m
     # travelled metres.
@@ -300,10 +331,11 @@ def _odometer(params, state, sample, track_table, robust=False):
     interval = dict(interval_dD=interval_dD, interval_signed_dD=interval_signed_dD, interval_AD=interval_AD,
                     interval_turn=turn)
     interval = {k: jnp.where(ended, 0.0, v) for k, v in interval.items()}
-    return dict(dt=dt, time_ok=time_ok, left=left, right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD,
-                d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
-                interval=interval, track=track, alpha=alpha, dpp=dpp, plausible=plausible, kept=kept,
-                guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
+    return dict(dt=dt, dt_counts=dt_counts, held=held, last_count_time=last_count_time, time_ok=time_ok, left=left,
+                right=right, n_left=n_left, n_right=n_right, dD=dD, AD=AD, d_t=d_t, speed=speed, window_dD=window_dD,
+                window_AD=window_AD, curvature=curvature, interval=interval, track=track, alpha=alpha, dpp=dpp,
+                plausible=plausible, kept=kept, guard=guard_state, turn_rate=guard_state.rate_dD / track,
+                turn_sigma=dD_sigma / track)
 
 
 def _compass_stage(params, state, sample, config, d_t, alpha):
@@ -441,7 +473,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(
-        params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=wheel_heading,
+        params, state.kalman, dt=odo["dt"], dt_counts=odo["dt_counts"], held=odo["held"], distance=odo["AD"],
+        alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman")
@@ -453,7 +486,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         # The counts' quantization taken out of the heading output (jaxmodel/dequantize.py); H_W stays as counted.
         dequant, epsilon = _dequant.update(state.dequant, alpha, odo["dt"], d_t > 0.0,
                                            _dequant.pulse_heading(odo["dpp"], odo["track"]),
-                                           initializing | (initialized < 0.5))
+                                           initializing | (initialized < 0.5), dt_moved=odo["dt_counts"])
         heading = wrap(heading + epsilon)
 
     # Dead-reckoned position with the mid-sample heading (x east, y north; heading from north).
@@ -474,7 +507,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         initialized=initialized,
         last_time=jnp.where(jnp.isfinite(sample.time_s) & ((sample.time_s > state.last_time) | (state.started < 0.5)),
                             sample.time_s, state.last_time),
-        last_left=odo["left"], last_right=odo["right"], speed=odo["speed"],
+        last_left=odo["left"], last_right=odo["right"], last_count_time=odo["last_count_time"], speed=odo["speed"],
         window_dD=odo["window_dD"], window_AD=odo["window_AD"], **odo["interval"], wheel_heading=wheel_heading,
         compass_heading=h_c,
         f_delta=fd["f_delta"], heading=heading, e_w=e_w, e_c=e_c, sdd=fd["sdd"], factor=fd["factor"],

@@ -125,7 +125,7 @@ def _snap(pulses, removed):
     return jnp.where(best_miss <= SNAP_PULSES, nearest, jnp.round(pulses)), best_miss <= SNAP_PULSES
 
 
-def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right):
+def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right, held=False):
     """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, new
     GuardState).
 
@@ -135,7 +135,9 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     wheel beyond max_speed is a counter fault, not motion: the FMUs discard such a sample); kept: the
     sample's motion is used (raw or substituted); dD_sigma: the uncertainty (m of dD) of a turn
     substituted for an ``impossible`` sample, else 0.  ``counts_ok`` is False for non-finite counts and
-    the first sample (no motion).
+    the first sample (no motion).  dt: the time the increments cover (s; since the counts last changed, see
+    ``model.COUNTS_HOLD_MAX_S``); ``held``: the counts repeat the last ones within that hold (no news: nothing is
+    checked and the rates wait for the change that covers the hold).
     """
     g = gs.fields()
     dpp = jnp.maximum(dpp_left, dpp_right)
@@ -147,7 +149,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     right_fast = jnp.abs(d_right) > speed_limit
     dD = d_left - d_right
     tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
-    turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S)
+    turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
     # A front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum curvature is no
     # vehicle's motion however long it lasts (a wheel sensor that stopped counting: dD/AD = 2).  Per sample each
@@ -207,10 +209,10 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     single = fix & ~both
     # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
     start = computed_once(single & ~exact & ~impossible)
-    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, time_ok & kept, start, single,
+    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, time_ok & kept & ~held, start, single,
                                          jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
 
-    w = jnp.where(time_ok & kept, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
+    w = jnp.where(time_ok & kept & ~held, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
     inv_dt = jnp.where(time_ok, 1.0 / step_dt, 0.0)
     substituted = jnp.where(fix, g.substituted + 1.0, 0.0)
     base = jnp.stack([g.rate_left + w * (d_left * inv_dt - g.rate_left),
@@ -219,7 +221,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       substituted,
                       _pending(single, pulses_left, g.removed_left),
                       _pending(single, pulses_right, g.removed_right),
-                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept)],
+                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept & ~held)],
                      axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     # The turn substituted for an impossible sample is a guess within c_max of the travel (and within the lateral
