@@ -400,6 +400,8 @@ def main(args) -> int:
 
     md = read_model_description(str(out))
     n = {c: sum(v.causality == c for v in md.modelVariables) for c in ("input", "output", "parameter")}
-    print(f"wrote {out} ({n['input']} inputs, {n['output']} outputs, {n['parameter']} parameters; "
-          f"start values from {args.params or 'the built-in defaults'}; fmpy validate: no problems)")
+    from identification.console import info  # stderr, silenced by -q like every command's information lines
+
+    info(f"wrote {out} ({n['input']} inputs, {n['output']} outputs, {n['parameter']} parameters; "
+         f"start values from {args.params or 'the built-in defaults'}; fmpy validate: no problems)")
     return 0

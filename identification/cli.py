@@ -20,10 +20,12 @@ appear only when stderr is a terminal.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 1
+EXIT_INTERRUPTED = 130
 
 FIT_HELP = ("comma-separated parameter keys, no spaces, e.g. P,B,T_F,a; any numeric key of the parameter "
             "file (jaxmodel/params.py PARAMETER_TABLE) except sensor_axle and counter_modulus")
@@ -66,21 +68,20 @@ def _configure_jax():
     compile_cache.configure()
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
-    return value
+def _int_from(least: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"must be {least} or more, got {value}")
+        return value
+    return parse
 
 
-def _pos_int(text: str) -> int:
-    value = _nonneg_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be 1 or more, got {value}")
-    return value
+_nonneg_int = _int_from(0)
+_pos_int = _int_from(1)  # the same message whatever the value (-5 once read 'must be 0 or more')
 
 
 def _number(lo: float | None = None, lo_open: bool = True, hi: float | None = None):
@@ -268,9 +269,22 @@ def _run(args) -> int:
     return int(run(args) or 0)
 
 
+def _command_parser(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
+    """The parser of the (sub)command ``args`` chose, e.g. ``odocompass fleet identify``'s."""
+    while True:
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        chosen = getattr(args, subs[0].dest, None) if subs else None
+        if chosen not in (subs[0].choices if subs else {}):
+            return parser
+        parser = subs[0].choices[chosen]
+
+
 def main(argv=None) -> int:
     try:
-        args = _parser().parse_args(argv)
+        parser = _parser()
+        args, unknown = parser.parse_known_args(argv)
+        if unknown:  # named by the (sub)command they were given to, as its other usage errors are
+            _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(unknown)}")
     except SystemExit as exc:  # --help, --version (0) and usage errors (2, one line): returned, not raised
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     from . import console
@@ -282,7 +296,7 @@ def main(argv=None) -> int:
         return _run(args)
     except KeyboardInterrupt:
         print("odocompass: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as exc:  # the one place that maps errors to exit codes
         from jaxmodel.params import ParameterError
 
@@ -302,5 +316,17 @@ def main(argv=None) -> int:
               + ("" if debug else " (run again with --debug for the traceback)"), file=sys.stderr)
         return EXIT_INTERNAL
 
+def entry() -> None:
+    """The ``odocompass`` console script: ``main``'s exit code.  After Ctrl-C the process leaves without the
+    interpreter's finalization: XLA's compiler threads may still be running, and finalizing under them crashed the
+    process (SIGSEGV instead of 130).  Outputs are already safe by then (written to a temporary file and renamed)."""
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

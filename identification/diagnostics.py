@@ -15,7 +15,9 @@ returns one line per problem, each naming the drive:
   they wrap there), or counters that fall back by more than half their range (a wrap) while never
   coming near the modulus (they wrap elsewhere), with the time of the first;
 * **a counter that stopped counting** while the other counted on, for a second or more, with the times;
-* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times.
+* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times;
+* **time not in seconds**: a median time step of ``SLOW_STEP_S`` or more (milliseconds read as seconds make
+  every speed 1000 x too small, and the speed gates of the refinement never open).
 
 ``checked_params(path)`` loads and validates a parameter file with every error naming the file.
 """
@@ -36,6 +38,8 @@ DISAGREE_FRACTION = 0.25
 """... in at least this fraction of the windows counts as persistent."""
 WINDOW_S = 60.0
 MAX_TIMES_SHOWN = 5
+SLOW_STEP_S = 5.0
+"""A median time step this long (s) is no wheel-odometry log: time_s is probably in milliseconds."""
 
 
 def checked_params(path, label: str = "--params"):
@@ -78,13 +82,15 @@ def _window_means(t: np.ndarray, err_deg: np.ndarray, ok: np.ndarray) -> np.ndar
     return np.rad2deg(np.arctan2(s[full], c[full]))
 
 
-def _compass_warnings(name, drive, params, cols) -> list[str]:
+def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[str]:
     out = []
     valid = np.asarray(cols["compass_valid"]) > 0
     n = valid.size
     if not np.any(valid):
+        consequence = ("the compass mode has no heading to give (heading_deg is no estimate, heading_reliability at its least)"
+                       if mode == "compass" else "the heading comes from the wheels alone and its start is unknown")
         return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN, inf or no field); "
-                f"the heading comes from the wheels alone and its start is unknown"]
+                f"{consequence}"]
     cx = np.asarray(drive.inputs.compass_x, dtype=np.float64) - float(params.X0)
     cy = np.asarray(drive.inputs.compass_y, dtype=np.float64) - float(params.Y0)
     mag = np.hypot(cx, cy)
@@ -195,10 +201,22 @@ def _odometer_warnings(name, cols) -> list[str]:
             f"counts) at {_times(t)}"]
 
 
-def drive_warnings(drive, params, cols: Mapping[str, np.ndarray]) -> list[str]:
-    """Warnings for one drive (see the module docstring); ``cols`` as returned by ``estimate_drive``."""
+def _time_warnings(name, drive) -> list[str]:
+    t = np.asarray(drive.inputs.time_s, dtype=np.float64)
+    if t.size < 3:
+        return []
+    step = float(np.median(np.diff(t)))
+    if step < SLOW_STEP_S:
+        return []
+    return [f"{name}: the median time step is {step:.4g} s, too long for a wheel-odometry log: is time_s in "
+            f"milliseconds? (then every speed reads 1000 x too small)"]
+
+
+def drive_warnings(drive, params, cols: Mapping[str, np.ndarray], mode="complementary") -> list[str]:
+    """Warnings for one drive (see the module docstring); ``cols`` as returned by ``estimate_drive`` in ``mode``."""
     name = drive.path
-    return (_compass_warnings(name, drive, params, cols) + _counter_warnings(name, drive, params)
+    return (_time_warnings(name, drive) + _compass_warnings(name, drive, params, cols, mode)
+            + _counter_warnings(name, drive, params)
             + _stopped_counter_warnings(name, drive, params) + _odometer_warnings(name, cols))
 
 

@@ -108,7 +108,11 @@ def _to_numeric(name: str, values: np.ndarray, source: str, strict: bool) -> np.
     Non-schema columns that are not numeric are returned unchanged when ``strict`` is False.
     """
     arr = np.asarray(values)
+    # true/false are flags (0/1), never a count, a time or a field: refused in the other schema columns
+    booleans_ok = name in FLAG_COLUMNS or not strict
     if arr.dtype == np.bool_:
+        if not booleans_ok:
+            raise DriveLogError(f"{source}: column {name!r} holds true/false values; it needs numbers")
         return arr.astype(np.int64)
     if np.issubdtype(arr.dtype, np.integer):
         return arr.astype(np.int64)
@@ -121,7 +125,7 @@ def _to_numeric(name: str, values: np.ndarray, source: str, strict: bool) -> np.
             continue
         if isinstance(cell, bytes):
             cell = cell.decode("utf-8", "replace")
-        if isinstance(cell, bool):
+        if isinstance(cell, bool) and booleans_ok:
             out[i] = float(cell)
             continue
         if isinstance(cell, str):
@@ -130,7 +134,7 @@ def _to_numeric(name: str, values: np.ndarray, source: str, strict: bool) -> np.
             if low in ("", "nan", "-nan", "na", "n/a", "null", "none"):
                 out[i] = np.nan
                 continue
-            if low in ("true", "false"):
+            if low in ("true", "false") and booleans_ok:
                 out[i] = 1.0 if low == "true" else 0.0
                 continue
             try:
@@ -226,7 +230,9 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     for name in header:
         col = table.column(name)
         values = None
-        for target in (pa.int64(), pa.float64(), pa.bool_()):
+        # Arrow reads "0x10" as 16; a log's numbers are decimal, so such a cell goes row by row and is refused there.
+        hex_text = pc.any(pc.match_substring_regex(col, r"^\s*[+-]?0[xX]")).as_py()
+        for target in () if hex_text else (pa.int64(), pa.float64(), pa.bool_()):
             try:
                 cast = pc.cast(col, target)
             except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
@@ -259,8 +265,9 @@ def _read_parquet(path: Path) -> dict[str, np.ndarray]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    # Names checked before reading: Arrow's own error on a repeated name is a dump of the schema.
+    _check_names(path, pq.read_schema(path).names)
     table = pq.read_table(path)
-    _check_names(path, table.column_names)
     out: dict[str, np.ndarray] = {}
     for name in table.column_names:
         col = table.column(name)
@@ -302,6 +309,11 @@ def _read_mf4_channels(MDF, path: Path, scratch: str) -> dict[str, np.ndarray]:
                 occurrences.setdefault(ch.name, []).append((gi, ci))
         if "left_pulses" not in occurrences:
             raise DriveLogError(f"{path}: missing required column 'left_pulses' (no MDF channel of that name)")
+        for name, places in occurrences.items():
+            if name in SCHEMA_COLUMNS and name != "time_s" and len(places) > 1:
+                (g1, _), (g2, _) = places[:2]
+                where_twice = f"MDF channel group {g1}" if g1 == g2 else f"MDF channel groups {g1} and {g2}"
+                raise DriveLogError(f"{path}: column {name!r} appears twice ({where_twice})")
         drive_group = occurrences["left_pulses"][0][0]
         where: dict[str, tuple[int, int]] = {}
         for name, places in occurrences.items():

@@ -138,7 +138,7 @@ def main(args) -> int:
                      f"{args.params or 'the built-in defaults'}: the nominal vehicle, with the wheel turn's scale "
                      f"error learned online (filter_scale_sigma0 {sigma0:g}); "
                      f"odocompass identify finds the vehicle's own")
-    for w in drive_warnings(drive, params, cols):
+    for w in drive_warnings(drive, params, cols, mode=args.mode):
         console.warn(w)
     n_compass, n_odometer = skipped_counts(cols)
     console.info(f"skipped {n_compass} compass samples, {n_odometer} odometer samples "

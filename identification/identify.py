@@ -110,6 +110,13 @@ def _has_ref(d) -> bool:
     return d.ref_heading is not None and bool(np.any(np.isfinite(d.ref_heading)))
 
 
+def _ref_heading_column(d) -> str:
+    """How the drive's reference heading column stands, for an error that says which."""
+    if d.ref_heading is None:
+        return "column 'ref_heading_deg'"
+    return "column 'ref_heading_deg' is there, but every value is empty or NaN"
+
+
 def resolve_reference(reference: str, train, validate) -> str:
     """'heading' or 'fixes' from ``reference`` ('auto': the reference heading when every training
     drive has one, else the fixes); a drive lacking what the choice needs is refused by name."""
@@ -119,12 +126,12 @@ def resolve_reference(reference: str, train, validate) -> str:
         reference = "heading" if all(_has_ref(d) for d in train) else "fixes"
         for d in train + validate:
             if not _has_ref(d) and not FX.has_fixes(d):
-                raise OdoCompassError(f"{_drive_name(d)}: neither a reference heading (column 'ref_heading_deg') "
+                raise OdoCompassError(f"{_drive_name(d)}: neither a reference heading ({_ref_heading_column(d)}) "
                                       f"nor position fixes (columns 'fix_east_m', 'fix_north_m', 'fix_valid'): "
                                       f"identification needs one of them")
     for d in train + validate:
         if reference == "heading" and not _has_ref(d):
-            raise OdoCompassError(f"{_drive_name(d)}: no reference heading (column 'ref_heading_deg'), which "
+            raise OdoCompassError(f"{_drive_name(d)}: no reference heading ({_ref_heading_column(d)}), which "
                                   f"--reference heading needs (use --reference fixes with position fixes)")
         if reference == "fixes" and not FX.has_fixes(d):
             n = int(np.count_nonzero(np.asarray(d.inputs.fix_valid) > 0.5))
@@ -319,7 +326,9 @@ def _fit_one_stage(problem: _Problem, stage: Stage, current):
             bar.refresh()
             bar.close()
     z = np.asarray(res_final.z)
-    current = space.to_params(jnp.asarray(z), current)
+    # A key held at z = 0 (not identifiable) keeps its start exactly (P 0.125 once came back 0.12500000000000003).
+    unmoved = {key: getattr(current, key) for key, _tr, sl in space._segments() if not np.any(z[sl])}
+    current = space.to_params(jnp.asarray(z), current)._replace(**unmoved)
     theta = space.theta(z)
     theta0 = space.theta(np.zeros_like(z))
     iters = res.iterations + (res_final.iterations if res_final is not res else 0)
@@ -518,6 +527,21 @@ def _zero_start_warnings(report, params_file) -> list[str]:
     return out
 
 
+def _reuse_warnings(drives, validate) -> list[str]:
+    """A drive given twice counts twice in the fit; a validation drive that is also fitted validates nothing."""
+    def same(path):
+        return Path(path).resolve()
+
+    out, seen = [], set()
+    for p in drives:
+        if same(p) in seen:
+            out.append(f"{p}: given twice among the drives to fit; it counts twice in the loss")
+        seen.add(same(p))
+    out += [f"{p}: a --validate drive that is also fitted; its RMSE is no held-out figure"
+            for p in validate if same(p) in seen]
+    return out
+
+
 def main(args) -> int:
     """``odocompass identify DRIVE... --params INIT.json --out FIT.json [--fit ...] [--validate ...] [--plots DIR]``.
 
@@ -534,7 +558,7 @@ def main(args) -> int:
     t0 = time.perf_counter()
     inputs = ([("the parameter file", args.params)] + [("the drive log", d) for d in args.drives]
               + [("the validation drive log", d) for d in (args.validate or [])])
-    check_output_file(args.out, inputs=inputs, label="--out")
+    check_output_file(args.out, inputs=inputs, label="--out", suffixes=(".json",))  # a parameter file
     if args.plots:
         check_output_dir(args.plots, inputs=inputs, label="--plots")
     start, _extra = checked_params(args.params)
@@ -545,7 +569,7 @@ def main(args) -> int:
         raise OdoCompassError(f"{args.params}: {exc}") from None
     train = [read_drive(p) for p in args.drives]
     validate = [read_drive(p) for p in (args.validate or [])]
-    drive_warnings = batch_warnings(train + validate, start)
+    drive_warnings = _reuse_warnings(args.drives, args.validate or []) + batch_warnings(train + validate, start)
     for w in drive_warnings:
         console.warn(w)
     kwargs = {}

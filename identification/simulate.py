@@ -392,7 +392,9 @@ def main(args) -> int:
     out, csv_path, json_path = outs
     n = columns["time_s"].size
     dist = float(np.sum(np.abs(np.diff(truth["x_m"]) + 1j * np.diff(truth["y_m"]))))
-    print(f"simulated {args.scenario} drive: {n} samples, {columns['time_s'][-1]:.1f} s, {dist / 1000:.2f} km, "
-          f"{truth['n_anomalies']} anomalies, {time.perf_counter() - t0:.2f} s")
-    print(f"wrote {out}, {csv_path.name}, {json_path.name}")
+    from .console import info  # information lines: stderr, silenced by -q like every command's
+
+    info(f"simulated {args.scenario} drive: {n} samples, {columns['time_s'][-1]:.1f} s, {dist / 1000:.2f} km, "
+         f"{truth['n_anomalies']} anomalies, {time.perf_counter() - t0:.2f} s")
+    info(f"wrote {out}, {csv_path.name}, {json_path.name}")
     return 0

@@ -499,9 +499,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         y = state.y + odo["AD"] * jnp.cos(mid)
 
     bound = _offset.bound(params, fd["shown"], initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
+    # Before the heading is initialized the bound is UNINITIALIZED_BOUND (180 deg): the reliability is then its
+    # smallest, 1 / (1 + 180 / reliability_scale_deg), inside SPEC §8's (0, 1] (exactly 0 before stop 44).
     reliability = _hf.reliability(params, bound)
-    if robust:
-        reliability = jnp.where(initialized > 0.5, reliability, 0.0)
     new_state = State(
         started=jnp.ones((), jnp.float64),
         initialized=initialized,

@@ -379,6 +379,36 @@ def test_csv_unparseable_cell(tmp_path):
     assert_one_line(info, path, ["row 3", "'left_pulses'", "'abc'"])
 
 
+@pytest.mark.parametrize("column, cell", [("compass_x", "true"), ("left_pulses", "False"), ("left_pulses", "0x10"),
+                                          ("compass_y", " -0X1f")])
+def test_csv_booleans_and_hex_are_no_numbers(tmp_path, column, cell):
+    """Before stop 44 'true' read 1.0 in any column (a compass sample at (1, 0) used as valid) and Arrow read '0x10'
+    as 16.  Booleans stay accepted in the flag columns."""
+    header = ["time_s", "left_pulses", "right_pulses", "compass_x", "compass_y", "map_heading_deg", "map_valid"]
+    rows = [[0.0, 1, 1, 1.0, 0.0, 10.0, "true"], [0.1, 2, 2, 1.0, 0.0, 10.0, "false"], [0.2, 3, 3, 1.0, 0.0, 10.0, 1]]
+    rows[2][header.index(column)] = cell
+    path = _write_csv_text(tmp_path / "cells.csv", header, rows)
+    with pytest.raises(DriveLogError) as info:
+        read_drive(path)
+    assert_one_line(info, path, ["row 3", repr(column), repr(cell)])
+    rows[2][header.index(column)] = 3 if "pulses" in column else 1.0
+    assert read_drive(_write_csv_text(tmp_path / "flags.csv", header, rows)).inputs.map_valid.tolist() == [1, 0, 1]
+
+
+def test_parquet_boolean_column_where_numbers_belong(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    cols = synthetic_columns(n=5)
+    table = {k: v for k, v in cols.items()}
+    table["compass_x"] = np.asarray(cols["compass_x"]) > 0.0
+    path = tmp_path / "bool.parquet"
+    pq.write_table(pa.table(table), path)
+    with pytest.raises(DriveLogError) as info:
+        read_drive(path)
+    assert_one_line(info, path, ["'compass_x'", "true/false"])
+
+
 def test_csv_empty_cells_and_text_columns(tmp_path):
     header = ["time_s", "left_pulses", "right_pulses", "compass_x", "compass_y", "comment"]
     path = _write_csv_text(tmp_path / "cells.csv", header,
@@ -425,6 +455,39 @@ def test_mf4_channel_on_another_time_base(tmp_path):
     with pytest.raises(DriveLogError) as info:
         read_drive(path)
     assert_one_line(info, path, ["'compass_y'", "time base"])
+
+
+@pytest.mark.parametrize("same_group", [True, False])
+def test_mf4_and_parquet_column_twice(tmp_path, same_group):
+    """Before stop 44 an MDF4 with two compass_x channels used the first one silently, and a Parquet file's error was
+    Arrow's dump of its schema; now both say what a CSV says."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from asammdf import MDF, Signal
+
+    cols = synthetic_columns(n=10)
+    t = cols["time_s"]
+    mdf = MDF(version="4.10")
+    drive = [Signal(cols[k], t, name=k) for k in ("left_pulses", "right_pulses", "compass_x", "compass_y")]
+    other = Signal(np.full(t.size, 99.0), t, name="compass_x")
+    mdf.append(drive + [other] if same_group else drive, common_timebase=True)
+    if not same_group:
+        mdf.append([other], common_timebase=True)
+    path = tmp_path / "twice.mf4"
+    mdf.save(path)
+    mdf.close()
+    with pytest.raises(DriveLogError) as info:
+        read_drive(path)
+    assert_one_line(info, path, ["'compass_x'", "appears twice", "group 0" if same_group else "groups 0 and 1"])
+
+    table = pa.Table.from_arrays([pa.array(cols[k]) for k in cols] + [pa.array(cols["compass_x"])],
+                                 names=list(cols) + ["compass_x"])
+    parquet = tmp_path / "twice.parquet"
+    pq.write_table(table, parquet)
+    with pytest.raises(DriveLogError) as info:
+        read_drive(parquet)
+    assert_one_line(info, parquet, ["'compass_x'", "appears twice"])
+    assert "FieldRef" not in str(info.value)
 
 
 def test_mf4_drive_in_a_later_group(tmp_path):

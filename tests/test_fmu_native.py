@@ -500,4 +500,4 @@ def test_build_fmu_native_command_line(native, monkeypatch, capsys, tmp_path):
     params.write_text(json.dumps(CUSTOM))
     assert main(["build-fmu", "--native", "--params", str(params), "--out", str(tmp_path / "N.fmu")]) == 0
     assert [c[1] for c in calls] == [None, str(params)] and (tmp_path / "N.fmu").is_file()
-    assert "22 outputs" in capsys.readouterr().out
+    assert "22 outputs" in capsys.readouterr().err  # an information line (stderr, silenced by -q)

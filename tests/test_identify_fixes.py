@@ -109,10 +109,14 @@ def test_cli_reference_refusals_and_report(tmp_path, capsys):
     write_drive(bare, {k: v for k, v in simulate("urban", 40.0, seed=3)[0].items() if k != "ref_heading_deg"})
     fixes = tmp_path / "fixes.csv"       # fixes only
     write_drive(fixes, _cols("urban", 80.0, 4))
+    empty_ref = tmp_path / "empty_ref.csv"  # a reference column of NaN only (stop 44: read as if it were missing)
+    cols = simulate("urban", 40.0, seed=3)[0]
+    write_drive(empty_ref, dict(cols, ref_heading_deg=np.full_like(cols["ref_heading_deg"], np.nan)))
     out = tmp_path / "fit.json"
     for drive, ref, needle in ((plain, "fixes", "plain.csv: 0 valid position fixes"),
                                (fixes, "heading", "fixes.csv: no reference heading"),
-                               (bare, "auto", "bare.csv: neither a reference heading")):
+                               (bare, "auto", "bare.csv: neither a reference heading"),
+                               (empty_ref, "auto", "'ref_heading_deg' is there, but every value is empty or NaN")):
         rc = cli.main(["identify", str(drive), "--params", str(init), "--out", str(out), "--reference", ref,
                        "--fit", "T_F"])
         err = capsys.readouterr().err

@@ -245,9 +245,12 @@ def test_matrix_drive_is_deterministic_and_condition_changes_only_its_part():
 def test_no_compass_is_never_reliable(condition):
     drive = sc.make_drive("urban", condition, 201, duration_s=180.0)
     out = _run(drive, robust=True)
-    assert float(jnp.max(out.heading_reliability)) == 0.0
     assert float(jnp.max(out.initialized)) == 0.0
     assert float(jnp.min(out.heading_bound)) == pytest.approx(np.pi)
+    # the least reliability there is, that of a 180-deg bound, and inside SPEC §8's (0, 1]
+    least = 1.0 / (1.0 + 180.0 / jm.PARAMETER_SPECS["reliability_scale_deg"].default)
+    assert float(jnp.max(out.heading_reliability)) == pytest.approx(least)
+    assert float(jnp.min(out.heading_reliability)) > 0.0
 
 
 def test_dropout_lowers_reliability():

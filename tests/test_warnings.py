@@ -22,12 +22,12 @@ def base():
     return cols, truth
 
 
-def _warnings(cols, params: dict, tmp_path, capsys, name="d.csv"):
+def _warnings(cols, params: dict, tmp_path, capsys, name="d.csv", mode="complementary"):
     drive, pfile, est = tmp_path / name, tmp_path / "p.json", tmp_path / "est.csv"
     write_drive(drive, cols)
     pfile.write_text(json.dumps(params))
     before = drive.read_bytes()
-    assert cli.main(["estimate", str(drive), "--params", str(pfile), "--out", str(est)]) == 0
+    assert cli.main(["estimate", str(drive), "--params", str(pfile), "--out", str(est), "--mode", mode]) == 0
     assert drive.read_bytes() == before
     err = capsys.readouterr().err
     return [line for line in err.splitlines() if line.startswith("odocompass: warning: ")], err
@@ -42,7 +42,22 @@ def test_clean_drive_has_no_warning(base, tmp_path, capsys):
 def test_no_usable_compass(base, tmp_path, capsys):
     cols = dict(base[0], compass_x=np.full_like(base[0]["compass_x"], np.nan))
     warnings, _ = _warnings(cols, dict(base[1]["params"]), tmp_path, capsys)
-    assert any("no usable compass" in w and "d.csv" in w for w in warnings), warnings
+    assert any("no usable compass" in w and "d.csv" in w and "from the wheels alone" in w for w in warnings), warnings
+
+
+def test_no_usable_compass_in_the_compass_mode_says_there_is_no_heading(base, tmp_path, capsys):
+    """Before stop 44 the compass mode was told its heading came 'from the wheels alone'."""
+    cols = dict(base[0], compass_x=np.full_like(base[0]["compass_x"], np.nan))
+    warnings, _ = _warnings(cols, dict(base[1]["params"]), tmp_path, capsys, mode="compass")
+    assert any("no usable compass" in w and "no heading to give" in w for w in warnings), warnings
+    assert not any("wheels alone" in w for w in warnings), warnings
+
+
+def test_time_in_milliseconds(base, tmp_path, capsys):
+    """Before stop 44 a log stamped in milliseconds ran without a word, every speed 1000 x too small."""
+    cols = dict(base[0], time_s=np.asarray(base[0]["time_s"]) * 1000.0)
+    warnings, _ = _warnings(cols, dict(base[1]["params"]), tmp_path, capsys)
+    assert any("milliseconds" in w and "d.csv" in w for w in warnings), warnings
 
 
 def test_uncalibrated_compass_field_magnitude_and_reference(base, tmp_path, capsys):
@@ -123,3 +138,17 @@ def test_identify_report_has_the_drive_warnings_and_survives_a_failed_plot(base,
     assert "a starts at 0" in text  # the zero start is allowed, and said
     assert "plots not written" in err and "no usable compass" in err and "\r" not in err
     assert report["parameters"]["a"]["transform"] == "softplus" and report["parameters"]["a"]["fitted"] >= 0.0
+
+
+def test_identify_warns_of_a_drive_fitted_twice_or_validated_on_itself(tmp_path, monkeypatch):
+    """Before stop 44 ``identify d.csv --validate d.csv`` reported a 'held-out' RMSE of a fitted drive silently."""
+    from identification.identify import _reuse_warnings
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "d.csv").write_text("x")
+    (tmp_path / "e.csv").write_text("x")
+    warnings = _reuse_warnings(["d.csv", "./d.csv", "e.csv"], [str(tmp_path / "d.csv"), "f.csv"])
+    assert len(warnings) == 2, warnings
+    assert "given twice" in warnings[0] and "./d.csv" in warnings[0]
+    assert "also fitted" in warnings[1]
+    assert _reuse_warnings(["d.csv"], ["e.csv"]) == []
