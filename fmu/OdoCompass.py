@@ -197,6 +197,15 @@ class OdoCompass(Fmi2Slave):
         self._log(f"{where}: unexpected {type(exc).__name__}: {exc}", Fmi2Status.error, "logStatusError")
 
     # -- value access (never raises) -------------------------------------------------------------
+    def _wrong_type(self, vr, kind, call):
+        """True (and an error-status message) when ``vr`` is no variable of FMI type ``kind`` (Real, Integer, ...)."""
+        var = self.vars.get(vr)
+        if var is not None and type(var).__name__ == kind:
+            return False
+        what = "is no variable of this FMU" if var is None else f"({var.name}) is a {type(var).__name__}"
+        self._log(f"{call}: value reference {vr} {what}; refused", Fmi2Status.error, "logStatusError")
+        return True
+
     def _get_any(self, vr):
         if vr in self._real_out:
             if self._o_stale:
@@ -275,7 +284,7 @@ class OdoCompass(Fmi2Slave):
         out = []
         for vr in vrs:
             try:
-                v = self._get_any(vr)
+                v = None if self._wrong_type(vr, "Real", "fmi2GetReal") else self._get_any(vr)
                 out.append(float(v) if isinstance(v, (int, float)) else _NAN)
             except Exception as exc:
                 self._log_exception("fmi2GetReal", exc)
@@ -288,7 +297,7 @@ class OdoCompass(Fmi2Slave):
             slot = m.get(vr)
             if slot is not None:
                 x[slot] = value
-            else:
+            elif not self._wrong_type(vr, "Real", "fmi2SetReal"):
                 try:
                     self._set_any(vr, value)
                 except Exception as exc:
@@ -302,7 +311,7 @@ class OdoCompass(Fmi2Slave):
             slot = m.get(vr)
             if slot is not None:
                 x[slot] = float(value)
-            else:
+            elif not self._wrong_type(vr, "Integer", "fmi2SetInteger"):
                 try:
                     self._set_any(vr, value)
                 except Exception as exc:
@@ -314,7 +323,7 @@ class OdoCompass(Fmi2Slave):
         out = []
         for vr in vrs:
             try:
-                v = self._get_any(vr)
+                v = None if self._wrong_type(vr, "Integer", "fmi2GetInteger") else self._get_any(vr)
                 out.append(int(v) if isinstance(v, (int, float, bool)) and v == v else 0)
             except Exception as exc:
                 self._log_exception("fmi2GetInteger", exc)
@@ -324,7 +333,8 @@ class OdoCompass(Fmi2Slave):
     def set_boolean(self, vrs, values):
         for vr, value in zip(vrs, values):
             try:
-                self._set_any(vr, value)
+                if not self._wrong_type(vr, "Boolean", "fmi2SetBoolean"):
+                    self._set_any(vr, value)
             except Exception as exc:
                 self._log_exception("fmi2SetBoolean", exc)
 
@@ -332,7 +342,7 @@ class OdoCompass(Fmi2Slave):
         out = []
         for vr in vrs:
             try:
-                out.append(bool(self._get_any(vr)))
+                out.append(not self._wrong_type(vr, "Boolean", "fmi2GetBoolean") and bool(self._get_any(vr)))
             except Exception as exc:
                 self._log_exception("fmi2GetBoolean", exc)
                 out.append(False)
@@ -341,7 +351,8 @@ class OdoCompass(Fmi2Slave):
     def set_string(self, vrs, values):
         for vr, value in zip(vrs, values):
             try:
-                self._set_any(vr, value)
+                if not self._wrong_type(vr, "String", "fmi2SetString"):
+                    self._set_any(vr, value)
             except Exception as exc:
                 self._log_exception("fmi2SetString", exc)
 
@@ -349,7 +360,7 @@ class OdoCompass(Fmi2Slave):
         out = []
         for vr in vrs:
             try:
-                v = self._get_any(vr)
+                v = None if self._wrong_type(vr, "String", "fmi2GetString") else self._get_any(vr)
                 out.append("" if v is None else str(v))
             except Exception as exc:
                 self._log_exception("fmi2GetString", exc)
@@ -568,36 +579,26 @@ class OdoCompass(Fmi2Slave):
         }
 
     def _set_fmu_state(self, state):
+        own = self._get_fmu_state()
         try:
-            sup = self._support
-            if state.get("format") != "odocompass-fmu-state/1":
-                raise ValueError(f"not an OdoCompass FMU state: format {state.get('format')!r}")
-            params = {}
-            for k, v in state["params"].items():
-                if isinstance(v, list):
-                    params[k] = sup.text_to_floats(v)
-                elif k in ("sensor_axle",):
-                    params[k] = v
-                else:
-                    params[k] = sup.text_to_float(v) if isinstance(v, str) else v
-            self._params = params
-            self._config = dict(state["config"])
-            self._t_start = sup.text_to_float(state["t_start"])
-            self._t_last = sup.text_to_float(state["t_last"])
-            self._o = sup.text_to_floats(state["o"])
-            self._x = sup.text_to_floats(state["x"])
-            self._strikes = int(state["strikes"])
-            self._discarded = int(state["discarded"])
-            self._stopped.restore(state.get("stopped"))
-            self._phase = state["phase"]
-            self._o_stale = False
-            self._refused = state.get("refused")
-            if state["s"] is None:
-                self._s = None
-            else:
-                if self._prepare() is None:
-                    self._s = None
-                    return
-                self._s = sup.text_to_floats(state["s"])
+            self._apply_state(state)
+        except (KeyError, TypeError, ValueError) as exc:  # a damaged or foreign state: the instance keeps its own
+            self._apply_state(own)
+            self._log(f"fmi2SetFMUstate: refused, the instance is unchanged: {exc}", Fmi2Status.error,
+                      "logStatusError")
         except Exception as exc:
             self._log_exception("fmi2SetFMUstate", exc)
+
+    def _apply_state(self, state):
+        f = self._support.parse_state(state, param_keys=self._params, n_inputs=len(self._x), n_outputs=len(self._o))
+        self._params, self._config, self._phase = f["params"], f["config"], f["phase"]
+        self._t_start, self._t_last, self._o, self._x = f["t_start"], f["t_last"], f["o"], f["x"]
+        self._strikes, self._discarded, self._refused = f["strikes"], f["discarded"], f["refused"]
+        self._stopped.restore(f["stopped"])
+        self._o_stale = False
+        self._s = None
+        if f["s"] is not None and self._prepare() is not None:
+            n = len(self._engine().layout["state"])
+            if len(f["s"]) != n:
+                raise ValueError(f"the state's 's' holds {len(f['s'])} values, this FMU {n}")
+            self._s = f["s"]

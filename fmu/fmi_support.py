@@ -138,6 +138,38 @@ def text_to_floats(values: Iterable[str]) -> list[float]:
     return [text_to_float(v) for v in values]
 
 
+STATE_FORMAT = "odocompass-fmu-state/1"
+STATE_PHASES = ("instantiated", "initialization", "stepping")
+
+
+def parse_state(state, *, param_keys, n_inputs: int, n_outputs: int) -> dict:
+    """The fields of a pythonfmu FMU state (the slave's ``_get_fmu_state`` dict), every one checked before any is
+    used: a ValueError says what is wrong, and a damaged or foreign state never half-replaces an instance's (a short
+    input vector once made the next fmi2SetInteger fatal; a missing parameter silently took its default)."""
+    if not isinstance(state, dict) or state.get("format") != STATE_FORMAT:
+        found = state.get("format") if isinstance(state, dict) else type(state).__name__
+        raise ValueError(f"not an OdoCompass FMU state: format {found!r}")
+    raw = state.get("params")
+    if not isinstance(raw, dict) or set(raw) != set(param_keys):
+        missing = sorted(set(param_keys) - set(raw or {}))
+        extra = sorted(set(raw or {}) - set(param_keys))
+        raise ValueError(f"the state's parameters differ from this FMU's (missing {missing}, unknown {extra})")
+    params = {k: (text_to_floats(v) if isinstance(v, list) else
+                  v if k == "sensor_axle" or not isinstance(v, str) else text_to_float(v)) for k, v in raw.items()}
+    out = dict(params=params, config=dict(state["config"]), phase=state["phase"],
+               t_start=text_to_float(state["t_start"]), t_last=text_to_float(state["t_last"]),
+               o=text_to_floats(state["o"]), x=text_to_floats(state["x"]), strikes=int(state["strikes"]),
+               discarded=int(state["discarded"]), stopped=state.get("stopped"), refused=state.get("refused"),
+               s=None if state["s"] is None else text_to_floats(state["s"]))
+    for name, n in (("x", n_inputs), ("o", n_outputs)):  # the estimator state's size: once its engine is ready
+        if len(out[name]) != n:
+            raise ValueError(f"the state's {name!r} holds {len(out[name])} values, this FMU {n}")
+    if out["phase"] not in STATE_PHASES or out["strikes"] < 0 or out["discarded"] < 0:
+        raise ValueError(f"the state's phase {out['phase']!r} or counts ({out['strikes']}, {out['discarded']}) "
+                         f"are no state of this FMU")
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
 # a wheel sensor that stopped counting
 # ----------------------------------------------------------------------------------------------

@@ -319,6 +319,62 @@ def test_a_damaged_serialized_state_is_refused_not_run(native):
     assert out == {"config -7": True, "config 1e6": True, "phase 9": True}, out
 
 
+PYTHONFMU_DAMAGED_STATE = """
+import json, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+md = read_model_description(sys.argv[1])
+vr = {v.name: v.valueReference for v in md.modelVariables}
+where = extract(sys.argv[1])
+messages = []
+callbacks = fmi2CallbackFunctions()
+callbacks.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, msg: messages.append(msg.decode()))
+def instance(name):
+    s = FMU2Slave(guid=md.guid, unzipDirectory=where, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    s.instantiate(callbacks=callbacks, loggingOn=True)
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    return s
+def step(s, k):
+    s.setInteger([vr["left_pulses"], vr["right_pulses"]], [50 * k, 49 * k])
+    s.setReal([vr["compass_x"], vr["compass_y"]], [20.0, 1.0])
+    s.doStep(0.1 * (k - 1), 0.1)
+    return s.getReal([vr["heading"], vr["distance"]])
+s, twin = instance("s"), instance("twin")
+step(s, 1), step(twin, 1)
+state = s.getFMUstate()
+good = json.loads(bytes(s.serializeFMUstate(state)))
+s.freeFMUstate(state)
+damage = {"short s": lambda j: j.update(s=j["s"][:5]), "short x": lambda j: j.update(x=j["x"][:2]),
+          "no B": lambda j: j["params"].pop("B"), "format": lambda j: j.update(format="other/1")}
+refused = {}
+for name, spoil in damage.items():
+    bad = json.loads(json.dumps(good))
+    spoil(bad)
+    del messages[:]
+    s.setFMUstate(s.deSerializeFMUstate(json.dumps(bad).encode()))
+    refused[name] = any("refused, the instance is unchanged" in m for m in messages)
+same = all(step(s, k) == step(twin, k) for k in range(2, 6))  # unchanged: it steps as its twin
+del messages[:]
+s.setInteger([vr["compass_x"]], [5])  # a Real through the Integer call: refused, the value kept
+kept = s.getReal([vr["compass_x"]]) == [20.0]
+s.getReal([vr["left_pulses"]])  # an Integer through the Real call
+wrong_type = sum("refused" in m for m in messages)
+print(json.dumps({"refused": refused, "same": same, "kept": kept, "wrong_type": wrong_type}))
+"""
+
+
+def test_the_pythonfmu_fmu_refuses_a_damaged_state_and_the_wrong_type():
+    """Before stop 44 a state with a short input vector passed, and the next fmi2SetInteger was fmi2Fatal; a missing
+    parameter silently took its default; fmi2SetInteger set a Real input and fmi2GetReal read an Integer, silently.
+    (pythonfmu 0.7.0 answers such calls OK: the error-status message is what it allows; the native FMU: fmi2Error.)"""
+    out = run_py(PYTHONFMU_DAMAGED_STATE, built_fmus()["estimator"])
+    assert out == {"refused": {"short s": True, "short x": True, "no B": True, "format": True}, "same": True,
+                   "kept": True, "wrong_type": 2}, out
+
+
 # ----------------------------------------------------------------------------------------------
 # a master stepping faster than the sensor: fmpy holds the counters between input rows
 # ----------------------------------------------------------------------------------------------
