@@ -87,8 +87,10 @@ def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[s
     valid = np.asarray(cols["compass_valid"]) > 0
     n = valid.size
     if not np.any(valid):
-        consequence = ("the compass mode has no heading to give (heading_deg is no estimate, heading_reliability at its least)"
-                       if mode == "compass" else "the heading comes from the wheels alone and its start is unknown")
+        if mode == "compass":
+            consequence = "the compass mode has no heading to give (heading_deg is no estimate, reliability least)"
+        else:
+            consequence = "the heading comes from the wheels alone and its start is unknown"
         return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN, inf or no field); "
                 f"{consequence}"]
     cx = np.asarray(drive.inputs.compass_x, dtype=np.float64) - float(params.X0)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .drive_log import Drive, _format_of, bucket_length, read_drive, stack_drives, wrap_deg, write_drive
+from .drive_log import Drive, _format_of, bucket_length, pad_inputs, read_drive, wrap_deg, write_drive
 from .errors import OdoCompassError
 
 OUTPUT_COLUMNS = ("time_s", "heading_deg", "wheel_heading_deg", "compass_heading_deg", "x_m", "y_m", "speed_mps",
@@ -39,8 +39,7 @@ def run_padded(params, drive: Drive, config):
     import jaxmodel
 
     n = len(drive.inputs.time_s)
-    stacked, _ = stack_drives([drive], length=bucket_length(n))
-    inputs = jaxmodel.Inputs(*(jnp.asarray(v[0]) for v in stacked))
+    inputs = jax.tree_util.tree_map(jnp.asarray, pad_inputs(drive.inputs, bucket_length(n)))
     return jax.tree_util.tree_map(lambda v: v[:n], jaxmodel.run(params, inputs, config))
 
 

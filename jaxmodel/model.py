@@ -244,6 +244,8 @@ def _odometer(params, state, sample, track_table, robust=False):
     right = jnp.where(counts_finite, sample.right_pulses, state.last_right)
     n_left = _decode_counter(left, state.last_left, params.counter_modulus)
     n_right = _decode_counter(right, state.last_right, params.counter_modulus)
+    dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
+    dpp = jnp.maximum(dpp_left, dpp_right)  # the longer pulse: the counts' resolution
     # Held counters (COUNTS_HOLD_MAX_S, robust modes): the interval a change of the counts covers, and the samples
     # that repeat them.  The seed filter keeps the seed's per-sample interval.
     changed = counts_finite & ((n_left != 0.0) | (n_right != 0.0))
@@ -254,13 +256,10 @@ def _odometer(params, state, sample, track_table, robust=False):
         # Only where the wheels' recent speed would have counted HOLD_MIN_PULSES in the sample: fewer unchanged
         # counts are a slow wheel's quantization.
         g = state.guard.fields()
-        pulse = jnp.maximum(state.calibration.dpp_left, state.calibration.dpp_right)
-        expected = jnp.maximum(jnp.abs(g.rate_left), jnp.abs(g.rate_right)) * dt / pulse
+        expected = jnp.maximum(jnp.abs(g.rate_left), jnp.abs(g.rate_right)) * dt / dpp
         held = time_ok & counts_finite & ~changed & (since < COUNTS_HOLD_MAX_S) & (expected >= HOLD_MIN_PULSES)
     last_count_time = jnp.where(jnp.isfinite(sample.time_s) & (~started | (changed & time_ok)), sample.time_s,
                                 state.last_count_time)
-    dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
-    dpp = jnp.maximum(dpp_left, dpp_right)  # the longer pulse: the counts' resolution
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
     # vehicle's motion, substituted from the other wheel and the recent turn rate.
     if robust:

@@ -209,10 +209,11 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     single = fix & ~both
     # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
     start = computed_once(single & ~exact & ~impossible)
-    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, time_ok & kept & ~held, start, single,
+    usable = time_ok & kept & ~held  # the samples the rates, the vernier and the window learn from
+    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, usable, start, single,
                                          jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
 
-    w = jnp.where(time_ok & kept & ~held, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
+    w = jnp.where(usable, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
     inv_dt = jnp.where(time_ok, 1.0 / step_dt, 0.0)
     substituted = jnp.where(fix, g.substituted + 1.0, 0.0)
     base = jnp.stack([g.rate_left + w * (d_left * inv_dt - g.rate_left),
@@ -221,7 +222,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
                       substituted,
                       _pending(single, pulses_left, g.removed_left),
                       _pending(single, pulses_right, g.removed_right),
-                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, time_ok & kept & ~held)],
+                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, usable)],
                      axis=-1)
     new = GuardState(jnp.concatenate([base, v], axis=-1))
     # The turn substituted for an impossible sample is a guess within c_max of the travel (and within the lateral
