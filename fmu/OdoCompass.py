@@ -558,25 +558,10 @@ class OdoCompass(Fmi2Slave):
 
     # -- FMU state ------------------------------------------------------------------------------
     def _get_fmu_state(self):
-        sup = self._support
-        params = {k: (sup.floats_to_text(v) if isinstance(v, list) else
-                      (sup.float_to_text(v) if isinstance(v, float) else v)) for k, v in self._params.items()}
-        return {
-            "format": "odocompass-fmu-state/1",
-            "bundle_id": self._manifest["bundle_id"],
-            "phase": self._phase,
-            "params": params,
-            "config": dict(self._config),
-            "t_start": sup.float_to_text(self._t_start),
-            "t_last": sup.float_to_text(self._t_last),
-            "s": None if self._s is None else sup.floats_to_text(self._s),
-            "o": sup.floats_to_text(self._o),
-            "x": sup.floats_to_text(self._x),
-            "strikes": self._strikes,
-            "discarded": self._discarded,
-            "stopped": self._stopped.to_json(),
-            "refused": self._refused,
-        }
+        return self._support.format_state(
+            bundle_id=self._manifest["bundle_id"], phase=self._phase, params=self._params, config=self._config,
+            t_start=self._t_start, t_last=self._t_last, s=self._s, o=self._o, x=self._x, strikes=self._strikes,
+            discarded=self._discarded, stopped=self._stopped.to_json(), refused=self._refused)
 
     def _set_fmu_state(self, state):
         own = self._get_fmu_state()

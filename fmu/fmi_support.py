@@ -142,6 +142,17 @@ STATE_FORMAT = "odocompass-fmu-state/1"
 STATE_PHASES = ("instantiated", "initialization", "stepping")
 
 
+def format_state(*, bundle_id: str, phase: str, params: Mapping[str, Any], config: Mapping[str, Any], t_start: float,
+                 t_last: float, s, o, x, strikes: int, discarded: int, stopped, refused) -> dict:
+    """A pythonfmu FMU state as JSON-ready fields, floats as ``float.hex`` (exact); ``parse_state`` reads it back."""
+    text = {k: (floats_to_text(v) if isinstance(v, list) else float_to_text(v) if isinstance(v, float) else v)
+            for k, v in params.items()}
+    return {"format": STATE_FORMAT, "bundle_id": bundle_id, "phase": phase, "params": text, "config": dict(config),
+            "t_start": float_to_text(t_start), "t_last": float_to_text(t_last),
+            "s": None if s is None else floats_to_text(s), "o": floats_to_text(o), "x": floats_to_text(x),
+            "strikes": strikes, "discarded": discarded, "stopped": stopped, "refused": refused}
+
+
 def parse_state(state, *, param_keys, n_inputs: int, n_outputs: int) -> dict:
     """The fields of a pythonfmu FMU state (the slave's ``_get_fmu_state`` dict), every one checked before any is
     used: a ValueError says what is wrong, and a damaged or foreign state never half-replaces an instance's (a short

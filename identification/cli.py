@@ -259,7 +259,7 @@ def _run(args) -> int:
     elif args.command == "estimate":
         from .estimate import main as run
     elif args.command == "identify":
-        from .identify import main as run
+        from .identify_command import main as run
     elif args.command == "build-fmu":
         from fmu.build import main as run
     elif args.command == "fleet":

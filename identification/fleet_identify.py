@@ -230,7 +230,7 @@ def main(args) -> int:
     from . import console
     from . import loss as L
     from .diagnostics import checked_params
-    from .identify import _json_safe, _zero_start_warnings
+    from .report import json_safe, zero_start_warnings
     from .outputs import OutputError, check_output_dir, same_file
 
     t0 = time.perf_counter()
@@ -283,13 +283,13 @@ def main(args) -> int:
             except jaxmodel.ParameterError as exc:
                 status, error, report = "error", f"the fitted parameters are not valid: {_one_line(exc)}", None
             else:
-                report["warnings"] = (report.pop("drive_warnings", []) + _zero_start_warnings(report, args.params)
+                report["warnings"] = (report.pop("drive_warnings", []) + zero_start_warnings(report, args.params)
                                       + report["warnings"])
                 status = "warning" if report["warnings"] else "ok"
                 report["start_file"] = str(args.params)
                 report["fleet"] = {"vehicle_id": vid, "status": status, "fingerprint": fps[vid],
                                    "manifest": str(manifest), "manifest_rows": veh.rows}
-                jaxmodel.save_params(out_dir / f"{vid}.json", fitted, _json_safe(report))
+                jaxmodel.save_params(out_dir / f"{vid}.json", fitted, json_safe(report))
         if status == "error":
             console.warn(f"vehicle {vid}: error: {error}")
         rows[vid] = summary_row(vid, status, report, error, len(veh.train), len(veh.validate), labels)

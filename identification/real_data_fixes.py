@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from . import fixes_loss as FX
-from .identify import _json_safe
+from .report import json_safe
 from .importers import (comma2k19_params, heading_rmse_deg, husky_params, import_comma2k19, import_husky,
                         split_drive, wrap_deg)
 
@@ -103,7 +103,7 @@ def run_husky_fixes(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: int 
     }
     out_dir.mkdir(parents=True, exist_ok=True)
     jaxmodel.save_params(out_dir / "husky.identified_fixes.params.json", fitted,
-                         report={"identify": _json_safe(rep), "import": _json_safe(report)})
+                         report={"identify": json_safe(rep), "import": json_safe(report)})
     table: dict[str, dict[str, Any]] = {}
     outs = {}
     for name, params in (("nominal", nominal), ("identified", fitted)):
@@ -188,7 +188,7 @@ def run_comma_compass(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: in
                 "last_30s": round(heading_rmse_deg(o["heading_deg"][late], ref[late]), 2)}
     out_dir.mkdir(parents=True, exist_ok=True)
     jaxmodel.save_params(out_dir / "comma2k19.identified_compass.params.json", fitted,
-                         report={"identify": _json_safe(rep), "import": _json_safe(report)})
+                         report={"identify": json_safe(rep), "import": json_safe(report)})
     from .plots import pyplot, save_figure
 
     plt = pyplot()

@@ -185,3 +185,24 @@ def effective_track_table(start, fitted, c_grid=(0.0, 0.05, 0.1, 0.15, 0.2)) -> 
         return [float(v) for v in np.asarray(effective_track(np.asarray(c_grid), p.P, p.B, p.T_F, p.curvature_clip))]
 
     return {"curvature": list(c_grid), "before_m": te(start), "after_m": te(fitted)}
+
+
+def json_safe(value):
+    """The report with NaN/inf (a drive without compass or reference has no RMSE) as null: strict JSON."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        return None
+    return value
+
+
+def zero_start_warnings(report, params_file) -> list[str]:
+    """A parameter started at 0, the boundary of a softplus parameter: said, with what it was fitted from."""
+    out = []
+    for label, row in report.get("parameters", {}).items():
+        if row.get("transform") == "softplus":
+            out.append(f"{label} starts at 0 in {params_file}, the boundary of a non-negative parameter: fitted as "
+                       f"c softplus(u) from {row['start']:.4g} (identification.loss); fitted {row['fitted']:.6g}")
+    return out

@@ -142,7 +142,7 @@ def test_identify_report_has_the_drive_warnings_and_survives_a_failed_plot(base,
 
 def test_identify_warns_of_a_drive_fitted_twice_or_validated_on_itself(tmp_path, monkeypatch):
     """Before stop 44 ``identify d.csv --validate d.csv`` reported a 'held-out' RMSE of a fitted drive silently."""
-    from identification.identify import _reuse_warnings
+    from identification.identify_command import _reuse_warnings
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "d.csv").write_text("x")
