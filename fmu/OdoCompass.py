@@ -98,7 +98,7 @@ class OdoCompass(Fmi2Slave):
         m = self._manifest
         self._x = [0.0] * len(m["sample_fields"])  # one jaxmodel.Inputs sample; slot 0 is time_s
         self._o = [_NAN] * len(m["outputs"])
-        self._o_stale = False
+        self._o_stale = True  # outputs read before initialization: from the start values, as the native FMU
         self._s = None  # flat estimator state (list of floats) once prepared
         self._params = {}  # JSON-style parameter values (jaxmodel.make_params input)
         self._config = {}
@@ -267,7 +267,7 @@ class OdoCompass(Fmi2Slave):
             name = self.vars[vr].name if vr in self.vars else "unknown"
             self._log(f"variable {vr} ({name}) cannot be set: set refused", Fmi2Status.error, "logBadParameter")
             return
-        if self._phase == "initialization":
+        if self._phase != "stepping":  # outputs before stepping follow the values set
             self._o_stale = True
 
     def get_real(self, vrs):
@@ -302,7 +302,7 @@ class OdoCompass(Fmi2Slave):
                     self._set_any(vr, value)
                 except Exception as exc:
                     self._log_exception("fmi2SetReal", exc)
-        if self._phase == "initialization":
+        if self._phase != "stepping":  # outputs before stepping follow the values set
             self._o_stale = True
 
     def set_integer(self, vrs, values):
@@ -316,7 +316,7 @@ class OdoCompass(Fmi2Slave):
                     self._set_any(vr, value)
                 except Exception as exc:
                     self._log_exception("fmi2SetInteger", exc)
-        if self._phase == "initialization":
+        if self._phase != "stepping":  # outputs before stepping follow the values set
             self._o_stale = True
 
     def get_integer(self, vrs):

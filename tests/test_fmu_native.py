@@ -273,6 +273,46 @@ def test_one_nan_row_runs_to_the_stop_time_in_fmpy(native):
 
 
 # ----------------------------------------------------------------------------------------------
+# outputs read before initialization: the same in both FMUs
+# ----------------------------------------------------------------------------------------------
+OUTPUTS_BEFORE_INIT = """
+import json, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+vr = {v.name: v.valueReference for v in md.modelVariables}
+outs = [v.name for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+s = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier=md.coSimulation.modelIdentifier,
+              instanceName="early")
+s.instantiate(loggingOn=False)
+read = {"instantiated": s.getReal([vr[o] for o in outs])}
+s.setReal([vr["compass_x"]], [-20.0])  # a value set before initialization changes what is read next
+read["instantiated, set"] = s.getReal([vr[o] for o in outs])
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+read["initialization"] = s.getReal([vr[o] for o in outs])
+s.exitInitializationMode()
+read["stepping"] = s.getReal([vr[o] for o in outs])
+s.terminate()
+s.freeInstance()
+print(json.dumps({"outputs": outs, "read": read}))
+"""
+
+
+def test_outputs_read_before_initialization_agree_between_the_fmus(native):
+    """Before stop 45 the pythonfmu FMU answered NaN in the instantiated state, the native FMU the outputs of the
+    start values; both now compute them from the values set so far, as initialization mode does."""
+    got = [run_py(OUTPUTS_BEFORE_INIT, fmu) for fmu in (native, built_fmus()["estimator"])]
+    for out in got:
+        read = out["read"]
+        assert all(math.isfinite(v) for v in read["instantiated"]), out
+        assert read["instantiated, set"] == read["initialization"] == read["stepping"], out
+        assert read["instantiated"] != read["instantiated, set"], out
+    for phase, values in got[0]["read"].items():
+        np.testing.assert_allclose(got[1]["read"][phase], values, rtol=1e-9, atol=1e-12, err_msg=phase)
+
+
+# ----------------------------------------------------------------------------------------------
 # a damaged serialized state is refused, never run
 # ----------------------------------------------------------------------------------------------
 DAMAGED_STATE = """
