@@ -35,6 +35,8 @@ FIELD_OFFSET = 0.15
 iron not removed (the magnitude then varies with heading by twice that).  The centre, not the spread of the
 magnitude per heading, since stop 45: on grades the compass's tilt (dip error) spreads the magnitude by 30 %
 on a calibrated compass (bench/independent_sim.py, urban_hilly seed 2: spread 0.32, centre 0.08 off)."""
+HARD_IRON_MIN_ARC_DEG = 120.0
+"""The wheels' heading must span this arc before the field circle's centre is read (hard_iron_min_turn_deg's value)."""
 DISAGREE_DEG = 15.0
 """A mean compass error (against the reference or the estimate) of this many degrees ..."""
 DISAGREE_FRACTION = 0.25
@@ -85,12 +87,24 @@ def _window_means(t: np.ndarray, err_deg: np.ndarray, ok: np.ndarray) -> np.ndar
     return np.rad2deg(np.arctan2(s[full], c[full]))
 
 
-def _hard_iron_warnings(name, drive, params, valid) -> list[str]:
+def _turned_enough(cols, valid) -> bool:
+    """The wheels' heading spans an arc of HARD_IRON_MIN_ARC_DEG (mean resultant length of its moving samples, as
+    jaxmodel/hard_iron.py): a short arc of noisy samples fits a small circle anywhere (a 20-s drive: radius 0.5 uT)."""
+    moving = valid & (np.asarray(cols.get("speed_mps", np.ones(valid.size))) > 0.0)
+    psi = np.deg2rad(np.asarray(cols["wheel_heading_deg"], dtype=np.float64)[moving])
+    psi = psi[np.isfinite(psi)]
+    half = np.deg2rad(HARD_IRON_MIN_ARC_DEG) / 2.0
+    return psi.size >= 20 and float(np.abs(np.mean(np.exp(1j * psi)))) < np.sin(half) / half
+
+
+def _hard_iron_warnings(name, drive, params, cols, valid) -> list[str]:
     """The circle the raw field draws while turning, centred off X0/Y0 by more than FIELD_OFFSET of its radius."""
     from .compass_fit import field_circle
 
+    if "wheel_heading_deg" not in cols or not _turned_enough(cols, valid):
+        return []
     fit = field_circle(drive.inputs, valid.astype(np.float64), params)
-    if fit is None:  # too few samples or too little turning to tell
+    if fit is None:  # too few samples to tell
         return []
     centre, cov, info = fit
     off = centre - np.array([float(params.X0), float(params.Y0)])
@@ -127,7 +141,7 @@ def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[s
                        f"(median) against field_magnitude {b_e:.4g} (x{med / b_e:.2f}); check the compass "
                        f"offsets X0/Y0 and its scale, or field_magnitude")
         else:
-            out += _hard_iron_warnings(name, drive, params, valid)
+            out += _hard_iron_warnings(name, drive, params, cols, valid)
     t = np.asarray(cols["time_s"], dtype=np.float64)
     comp = np.asarray(cols["compass_heading_deg"], dtype=np.float64)
     ref = None if drive.ref_heading is None else np.rad2deg(np.asarray(drive.ref_heading, dtype=np.float64))
@@ -258,6 +272,8 @@ def batch_warnings(drives, params, config=None) -> list[str]:
         cols = {"time_s": np.asarray(d.inputs.time_s, dtype=np.float64),
                 "heading_deg": wrap_deg(np.rad2deg(np.asarray(out.heading[b, :n]))),
                 "compass_heading_deg": wrap_deg(np.rad2deg(np.asarray(out.compass_heading[b, :n]))),
+                "wheel_heading_deg": wrap_deg(np.rad2deg(np.asarray(out.wheel_heading[b, :n]))),
+                "speed_mps": np.asarray(out.speed[b, :n]),
                 "compass_valid": np.asarray(out.compass_valid[b, :n]),
                 "odometer_valid": np.asarray(out.odometer_valid[b, :n])}
         warnings += drive_warnings(d, params, cols)
