@@ -11,8 +11,9 @@ drive, and the ratio default / min(odometer, compass).  Every warning line that
 odocompass prints is shown under the table.
 
 Seeds: 1-4 were looked at while diagnosing (stop 45; 4 after it had judged); 5 and above judge.
-Never choose a constant on this bench's drives: it is the project's stand-in for the outside evaluation (a simulator written by
-someone who had not read identification/simulate*.py, scenarios.py or sensors.py).
+Never choose a constant on this bench's drives: it is the project's stand-in for the outside
+evaluation (a simulator written by someone who had not read identification/simulate*.py,
+scenarios.py or sensors.py).
 
     python bench/bench_independent.py [SEED ...] [--kinds urban,mixed] [--clean]
         [--work-dir /tmp/indep/bench] [--disable anomalies,hills] [--extra-args "..."]
