@@ -79,7 +79,8 @@ def main(args) -> int:
     try:  # e.g. refine_speed_min and refine_speed_max fitted independently and crossed
         jaxmodel.validate_params(fitted)
     except jaxmodel.ParameterError as exc:
-        raise OdoCompassError(f"identify: the fitted parameters are not valid, nothing written to {args.out}: {exc}") from None
+        raise OdoCompassError(f"identify: the fitted parameters are not valid, nothing written to {args.out}: "
+                              f"{exc}") from None
     jaxmodel.save_params(args.out, fitted, R.json_safe(report))
     if not console.QUIET:
         print(R.format_summary(report))
