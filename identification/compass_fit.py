@@ -96,6 +96,13 @@ FIELD_CIRCLE_MIN_ARC_DEG = 120.0
 length of a uniform arc of that width), as ``hard_iron_min_turn_deg`` of the online estimate."""
 
 
+def spans_arc(resultant: float, arc_deg: float = FIELD_CIRCLE_MIN_ARC_DEG) -> bool:
+    """Directions whose mean resultant length is ``resultant`` span at least ``arc_deg`` (a uniform arc of width A
+    has sin(A/2) / (A/2))."""
+    half = math.radians(arc_deg) / 2.0
+    return resultant <= math.sin(half) / half
+
+
 def field_circle(inputs, mask, params, correlation_m: float = FIELD_CIRCLE_CORRELATION_M,
                  iterations: int = 20):
     """The centre (X0, Y0) of the circle the raw horizontal field draws while the vehicle turns, and
@@ -146,8 +153,7 @@ def field_circle(inputs, mask, params, correlation_m: float = FIELD_CIRCLE_CORRE
     # a circle is only determined by an arc of field directions (a short arc fits a small circle as
     # well as the true one): as the online estimate, at least FIELD_CIRCLE_MIN_ARC_DEG around the centre
     resultant = float(np.hypot(np.sum(w * dx / d), np.sum(w * dy / d)) / np.sum(w))
-    half = math.radians(FIELD_CIRCLE_MIN_ARC_DEG) / 2.0
-    if resultant > math.sin(half) / half:
+    if not spans_arc(resultant):
         return None
     res = d - r
     jac = np.stack([-dx / d, -dy / d, -np.ones_like(d)], axis=1)

@@ -35,8 +35,6 @@ FIELD_OFFSET = 0.15
 iron not removed (the magnitude then varies with heading by twice that).  The centre, not the spread of the
 magnitude per heading, since stop 45: on grades the compass's tilt (dip error) spreads the magnitude by 30 %
 on a calibrated compass (bench/independent_sim.py, urban_hilly seed 2: spread 0.32, centre 0.08 off)."""
-HARD_IRON_MIN_ARC_DEG = 120.0
-"""The wheels' heading must span this arc before the field circle's centre is read (hard_iron_min_turn_deg's value)."""
 DISAGREE_DEG = 15.0
 """A mean compass error (against the reference or the estimate) of this many degrees ..."""
 DISAGREE_FRACTION = 0.25
@@ -88,13 +86,15 @@ def _window_means(t: np.ndarray, err_deg: np.ndarray, ok: np.ndarray) -> np.ndar
 
 
 def _turned_enough(cols, valid) -> bool:
-    """The wheels' heading spans an arc of HARD_IRON_MIN_ARC_DEG (mean resultant length of its moving samples, as
-    jaxmodel/hard_iron.py): a short arc of noisy samples fits a small circle anywhere (a 20-s drive: radius 0.5 uT)."""
+    """The wheels' heading spans compass_fit.FIELD_CIRCLE_MIN_ARC_DEG (mean resultant length of its moving samples):
+    the fit's own arc test is around its centre, and a short arc of noisy samples fits a small circle anywhere
+    whose centre it surrounds (a 20-s drive: radius 0.5 uT, 20 uT away)."""
+    from .compass_fit import spans_arc
+
     moving = valid & (np.asarray(cols.get("speed_mps", np.ones(valid.size))) > 0.0)
     psi = np.deg2rad(np.asarray(cols["wheel_heading_deg"], dtype=np.float64)[moving])
     psi = psi[np.isfinite(psi)]
-    half = np.deg2rad(HARD_IRON_MIN_ARC_DEG) / 2.0
-    return psi.size >= 20 and float(np.abs(np.mean(np.exp(1j * psi)))) < np.sin(half) / half
+    return psi.size >= 20 and spans_arc(float(np.abs(np.mean(np.exp(1j * psi)))))
 
 
 def _hard_iron_warnings(name, drive, params, cols, valid) -> list[str]:
@@ -107,14 +107,14 @@ def _hard_iron_warnings(name, drive, params, cols, valid) -> list[str]:
     if fit is None:  # too few samples to tell
         return []
     centre, cov, info = fit
-    off = centre - np.array([float(params.X0), float(params.Y0)])
+    off = float(np.hypot(centre[0] - float(params.X0), centre[1] - float(params.Y0)))
     radius = float(info["radius"])
-    sure = float(np.sqrt(np.max(np.linalg.eigvalsh(cov)))) < 0.5 * float(np.hypot(*off))
-    if not (radius > 0 and np.hypot(*off) > FIELD_OFFSET * radius and sure):
+    sure = float(np.sqrt(np.max(np.linalg.eigvalsh(cov)))) < 0.5 * off
+    if not (radius > 0 and off > FIELD_OFFSET * radius and sure):
         return []
     return [f"{name}: the compass looks uncalibrated: the measured field circles around ({centre[0]:.4g}, "
-            f"{centre[1]:.4g}), {np.hypot(*off):.3g} off X0/Y0 = ({float(params.X0):.4g}, {float(params.Y0):.4g}) "
-            f"({np.hypot(*off) / radius:.0%} of its radius {radius:.4g}): a hard-iron offset not removed; set X0/Y0 "
+            f"{centre[1]:.4g}), {off:.3g} off X0/Y0 = ({float(params.X0):.4g}, {float(params.Y0):.4g}) "
+            f"({off / radius:.0%} of its radius {radius:.4g}): a hard-iron offset not removed; set X0/Y0 "
             f"(identify --fit X0,Y0) or run estimate --hard-iron on"]
 
 
