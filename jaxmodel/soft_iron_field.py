@@ -97,10 +97,10 @@ def init_soft_field_state() -> SoftFieldState:
 
 def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
     """One sample: ``heading`` the compass heading A before any soft-iron correction (rad), ``harmonics_of_a`` its
-    (sin 2A, cos 2A), |B| ``b_m`` and B_E per heading ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the
+    harmonics (``soft_iron.harmonics``: its last two, sin 2A and cos 2A, are used), |B| ``b_m`` and B_E per heading ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the
     compass valid and the vehicle moving, ``reset`` (bool) start the sums again first.  Returns the state."""
     # A sample not in use may carry anything (a heading of 1e308): it must not reach the sums, not even times 0.
-    s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a)
+    s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a[-2:])
     heading = jnp.where(use, heading, 0.0)
     x = (jnp.ones_like(s2), jnp.cos(heading), jnp.sin(heading), c2, s2)
     safe_m = jnp.where(use, b_m, 1.0)
@@ -172,7 +172,7 @@ def deviation(sf, harmonics_of_a, taken_out=NO_TABLE):
     """The deviation (rad) at a compass heading A given as ``soft_iron.harmonics(A)``, beyond what the deviation
     table took out (``taken_out``, see ``coefficients``); to subtract from H_C."""
     p, q = coefficients(sf, taken_out)
-    s, c = harmonics_of_a
+    s, c = harmonics_of_a[-2:]
     return p * s + q * c
 
 
