@@ -96,6 +96,14 @@ FIELD_CIRCLE_MIN_ARC_DEG = 120.0
 length of a uniform arc of that width), as ``hard_iron_min_turn_deg`` of the online estimate."""
 
 
+FIELD_CIRCLE_MIN_RADIUS_RESIDUALS = 6.0
+"""The fitted radius must be at least this many times the residuals' RMS.  A drive that hardly turns (a minute in
+town, samples within a microtesla of each other) fits a circle of the noise's size through them, spanning the arc
+around its own centre: radius 0.3-0.8 uT, 2.1-3.8 residuals, its centre 20 uT off (stop 46, matrix drives' first
+20-60 s).  Real circles: 11-43 residuals on the independent simulator's drives (grades of 8-10 % the lowest), 13-89
+on the matrix's."""
+
+
 def spans_arc(resultant: float, arc_deg: float = FIELD_CIRCLE_MIN_ARC_DEG) -> bool:
     """Directions whose mean resultant length is ``resultant`` span at least ``arc_deg`` (a uniform arc of width A
     has sin(A/2) / (A/2))."""
@@ -114,7 +122,8 @@ def field_circle(inputs, mask, params, correlation_m: float = FIELD_CIRCLE_CORRE
     samples outside map-flagged unreliable areas, every drive of the batch pooled (one sensor, one
     offset): an algebraic (Kåsa) fit starts a geometric fit, |B - c| - r, by Gauss-Newton with Cauchy
     weights at twice the residuals' MAD (anomalies); None unless the field directions around the
-    centre span ``FIELD_CIRCLE_MIN_ARC_DEG``.  Its covariance sigma² (JᵀWJ)⁻¹ is inflated to
+    centre span ``FIELD_CIRCLE_MIN_ARC_DEG`` and its radius ``FIELD_CIRCLE_MIN_RADIUS_RESIDUALS``
+    times the residuals' RMS.  Its covariance sigma² (JᵀWJ)⁻¹ is inflated to
     one independent error per ``correlation_m`` of travel; on a drive that never turns it is huge
     across the unseen direction, so the circle then says nothing there."""
     from .loss import travelled_distance
@@ -158,6 +167,8 @@ def field_circle(inputs, mask, params, correlation_m: float = FIELD_CIRCLE_CORRE
     res = d - r
     jac = np.stack([-dx / d, -dy / d, -np.ones_like(d)], axis=1)
     sigma2 = float(np.sum(w * res * res) / max(np.sum(w) - 3.0, 1.0))
+    if r < FIELD_CIRCLE_MIN_RADIUS_RESIDUALS * math.sqrt(sigma2):
+        return None  # a circle of the noise's size: the samples say nothing of the offset
     info_m = (jac * w[:, None]).T @ jac
     try:
         cov3 = sigma2 * np.linalg.inv(info_m)
