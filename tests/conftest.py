@@ -12,10 +12,20 @@ from pathlib import Path
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
 from identification import compile_cache  # noqa: E402 (imports no jax)
 
-# One persistent compilation cache for the session, fresh each run: the modules (which clear the in-memory caches)
-# and the CLI and FMU subprocesses compile many of the same programs; XLA:CPU then loads them instead.
-_COMPILATION_CACHE = tempfile.TemporaryDirectory(prefix="odocompass-test-jax-cache-")
-os.environ["JAX_COMPILATION_CACHE_DIR"] = _COMPILATION_CACHE.name
+# One folder for the whole run, shared by the xdist workers: the controller imports this file before it starts
+# them, they inherit the variable and use its folder; the controller removes it when it exits (after them).
+# Expensive artefacts that every worker would otherwise build alike go there (test_fmu.built_fmus: the FMUs).
+SHARED_RUN_DIR_ENV = "ODOCOMPASS_TEST_RUN_DIR"
+if not os.path.isdir(os.environ.get(SHARED_RUN_DIR_ENV, "")):
+    _SHARED_RUN_DIR = tempfile.TemporaryDirectory(prefix="odocompass-test-run-")
+    os.environ[SHARED_RUN_DIR_ENV] = _SHARED_RUN_DIR.name
+
+# One persistent compilation cache for the run, fresh each run, in that folder: the modules (which clear the
+# in-memory caches), both workers and the CLI and FMU subprocesses compile many of the same programs; XLA:CPU then
+# loads them instead.  A bound on its size turns on JAX's file lock around every read and write
+# (jax/_src/lru_cache.py), so a worker never reads a program the other is still writing.
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.path.join(os.environ[SHARED_RUN_DIR_ENV], "jax-cache")
+os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(4 << 30)
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = str(compile_cache.MIN_COMPILE_S)
 
 import jax  # noqa: E402

@@ -1,7 +1,8 @@
 """The OdoCompass FMU (issue 5, SPEC §7): model description, build-fmu, equivalence with
 ``odocompass estimate``, state save/restore, independence, bad input, host isolation.
 
-FMUs are built once per test process (``built_fmus``, shared with test_fmu_cosim.py).  Everything
+FMUs are built once per test run (``built_fmus``, shared with test_fmu_cosim.py, test_fmu_native.py
+and the other xdist worker).  Everything
 that steps an FMU runs in a subprocess that never imports ``jaxmodel``, so a bundling fault cannot
 be masked by the test process's own imports; references are computed here with ``jaxmodel``.
 """
@@ -38,15 +39,39 @@ SPEC_OUTPUTS = {"heading": "rad", "wheel_heading": "rad", "compass_heading": "ra
 
 @functools.lru_cache(maxsize=None)
 def built_fmus() -> dict[str, Path]:
-    """Build once per process: the estimator through the CLI (SPEC §5) with CUSTOM start values, and the vehicle."""
+    """Build once per test run: the estimator through the CLI (SPEC §5) with CUSTOM start values, and the vehicle.
+
+    The FMUs go to the run's shared folder (conftest: ODOCOMPASS_TEST_RUN_DIR): the first xdist worker to ask
+    builds them under a file lock, the other finds them there (a build is ~1 minute, ~2 with both workers busy).
+    Without that folder (this module imported outside the suite) each process builds its own."""
+    import fcntl
+
+    shared = os.environ.get("ODOCOMPASS_TEST_RUN_DIR", "")
+    if not os.path.isdir(shared):
+        d = Path(tempfile.mkdtemp(prefix="odocompass_test_fmu_"))
+        atexit.register(shutil.rmtree, d, True)
+        return _build_fmus(d)
+    d = Path(shared) / "fmus"
+    d.mkdir(exist_ok=True)
+    with open(d / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if the build fails
+        done = d / "built.json"
+        if done.is_file() and json.loads(done.read_text()) == CUSTOM:
+            return {"estimator": d / "OdoCompass.fmu", "vehicle": d / "VehicleSensors.fmu",
+                    "params": d / "params.json", "dir": d}
+        out = _build_fmus(d)
+        assert out["vehicle"] == d / "VehicleSensors.fmu", out
+        done.write_text(json.dumps(CUSTOM))
+        return out
+
+
+def _build_fmus(d: Path) -> dict[str, Path]:
     import jax
 
     jax.config.update("jax_enable_x64", True)
     from fmu.build import build_vehicle
     from identification.cli import main
 
-    d = Path(tempfile.mkdtemp(prefix="odocompass_test_fmu_"))
-    atexit.register(shutil.rmtree, d, True)
     params = d / "params.json"
     params.write_text(json.dumps(CUSTOM))
     est = d / "OdoCompass.fmu"
