@@ -54,3 +54,18 @@ def _free_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+HEAVY_FILES_FIRST = ("test_scenarios.py", "test_fleet.py", "test_identify_fixes.py", "test_fmu.py", "test_model.py",
+                     "test_kalman.py", "test_identify.py", "test_identify_recovery.py", "test_demo.py",
+                     "test_identify_from_zero.py", "test_hard_iron.py", "test_fmu_native.py", "test_fmu_cosim.py")
+"""Files that take two to six minutes each (``--durations``, stop 46), run first.  xdist's ``--dist loadfile`` hands
+the files out in the order collected, one at a time as a worker frees up: in alphabetical order the long files came
+last and one worker ran them alone while the other sat idle.  test_fmu.py comes before the two other FMU files so
+that the FMUs it builds for the run are there when they ask (``test_fmu.built_fmus``)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(HEAVY_FILES_FIRST)}
+    # A stable sort: each file's tests keep their order, the other files theirs after the heavy ones.
+    items.sort(key=lambda item: rank.get(item.path.name, len(HEAVY_FILES_FIRST)))
