@@ -45,7 +45,8 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from .angles import safe_sqrt, wrap
+from . import normal_equations as _ne
+from .angles import wrap
 from .packed import computed_once, packed_state
 
 SOFT_IRON_HIGHPASS_M = 30.0
@@ -69,42 +70,15 @@ independent seeds 5-8: 1.480 -> 1.460 deg (urban 7 1.39 -> 1.27, urban 8 1.30 ->
 none worse by more than 0.03)."""
 
 _K = 5  # regressors: sin A, cos A, sin 2A, cos 2A, the wheels' turn
-_PAIRS = [(i, j) for i in range(_K) for j in range(i, _K)]
 
 
-class SoftIronFields(NamedTuple):
-    """mean_delta (rad), mean_s1, mean_c1, mean_s, mean_c: the high-pass's exponential means of DELTA, sin A, cos A,
-    sin 2A, cos 2A; turn (rad): the wheels' turn high-passed the same way; n_ij (m): the normal matrix of the
-    high-passed regressors x = (sin A, cos A, sin 2A, cos 2A, turn), i <= j; b_i (rad m): its right-hand side;
-    started: 1 once a clean sample set the means."""
-
-    mean_delta: jnp.ndarray
-    mean_s1: jnp.ndarray
-    mean_c1: jnp.ndarray
-    mean_s: jnp.ndarray
-    mean_c: jnp.ndarray
-    turn: jnp.ndarray
-    n00: jnp.ndarray
-    n01: jnp.ndarray
-    n02: jnp.ndarray
-    n03: jnp.ndarray
-    n04: jnp.ndarray
-    n11: jnp.ndarray
-    n12: jnp.ndarray
-    n13: jnp.ndarray
-    n14: jnp.ndarray
-    n22: jnp.ndarray
-    n23: jnp.ndarray
-    n24: jnp.ndarray
-    n33: jnp.ndarray
-    n34: jnp.ndarray
-    n44: jnp.ndarray
-    b0: jnp.ndarray
-    b1: jnp.ndarray
-    b2: jnp.ndarray
-    b3: jnp.ndarray
-    b4: jnp.ndarray
-    started: jnp.ndarray
+SoftIronFields = NamedTuple("SoftIronFields", [(name, jnp.ndarray) for name in (
+    "mean_delta", "mean_s1", "mean_c1", "mean_s", "mean_c", "turn", *_ne.sum_fields(_K), "started")])
+SoftIronFields.__doc__ = """mean_delta (rad), mean_s1, mean_c1, mean_s, mean_c: the high-pass's exponential means
+of DELTA, sin A, cos A, sin 2A, cos 2A; turn (rad): the wheels' turn high-passed the same way; n_ij (m), b_i
+(rad m): the normal equations of the high-passed regressors x = (sin A, cos A, sin 2A, cos 2A, turn)
+(jaxmodel/normal_equations.py);
+started: 1 once a clean sample set the means."""
 
 
 SoftIronState = packed_state(SoftIronFields, "SoftIronState", "State of the online soft-iron deviation learner.")
@@ -114,32 +88,12 @@ def init_soft_iron_state() -> SoftIronState:
     return SoftIronState.pack(SoftIronFields(*([jnp.zeros((), jnp.float64)] * len(SoftIronFields._fields))))
 
 
-def _ridge_solve(f):
-    """The normal equations plus SOFT_IRON_PRIOR_M on the diagonal, by a Cholesky factor written out (5 x 5; the
-    native FMU lowers it).  Returns the coefficients of x, a list of 5."""
-    m = [[None] * _K for _ in range(_K)]
-    for i, j in _PAIRS:
-        m[i][j] = m[j][i] = getattr(f, f"n{i}{j}") + (SOFT_IRON_PRIOR_M if i == j else 0.0)
-    low = [[None] * _K for _ in range(_K)]
-    for j in range(_K):
-        low[j][j] = safe_sqrt(m[j][j] - sum((low[j][k] * low[j][k] for k in range(j)), 0.0), floor=1e-30)
-        for i in range(j + 1, _K):
-            low[i][j] = (m[i][j] - sum((low[i][k] * low[j][k] for k in range(j)), 0.0)) / low[j][j]
-    rhs = [getattr(f, f"b{i}") for i in range(_K)]
-    y = []
-    for i in range(_K):
-        y.append((rhs[i] - sum((low[i][k] * y[k] for k in range(i)), 0.0)) / low[i][i])
-    c = [None] * _K
-    for i in reversed(range(_K)):
-        c[i] = (y[i] - sum((low[k][i] * c[k] for k in range(i + 1, _K)), 0.0)) / low[i][i]
-    return c
-
-
 def all_coefficients(ss):
     """(p1, q1, p, q) (rad): DELTA's deviation as p1 sin A + q1 cos A + p sin 2A + q cos 2A, ridge-regressed beside
     the wheels' turn (whose coefficient, the wheel turn's scale error, is a nuisance here), clipped to
     SOFT_IRON_MAX."""
-    c = _ridge_solve(ss.fields())
+    c = _ne.cholesky_solve(_ne.normal_matrix(ss.fields(), _K, [SOFT_IRON_PRIOR_M] * _K),
+                           [getattr(ss, f"b{i}") for i in range(_K)])[0]
     return tuple(jnp.clip(v, -SOFT_IRON_MAX, SOFT_IRON_MAX) for v in c[:4])
 
 
@@ -189,7 +143,7 @@ def update(ss, delta, harmonics_of_a, alpha, d_t, clean, quality):
     x = [v - m for v, m in zip(h, means)] + [f.turn + alpha]
     g = jnp.where(learn, 1.0 - jnp.exp(-d_t / SOFT_IRON_HIGHPASS_M), 0.0)
     new_means = [jnp.where(first, v, m + g * xi) for v, m, xi in zip(h, means, x)]
-    sums = {f"n{i}{j}": getattr(f, f"n{i}{j}") + w * x[i] * x[j] for i, j in _PAIRS}
+    sums = {f"n{i}{j}": getattr(f, f"n{i}{j}") + w * x[i] * x[j] for i, j in _ne.pairs(_K)}
     sums.update({f"b{i}": getattr(f, f"b{i}") + w * x[i] * r for i in range(_K)})
     new = SoftIronFields(
         mean_delta=jnp.where(first, delta, wrap(f.mean_delta + g * r)),

@@ -42,7 +42,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from .angles import safe_sqrt
+from . import normal_equations as _ne
 from .packed import computed_once, packed_state
 
 RIDGE_M = 200.0
@@ -57,34 +57,11 @@ Z0 = 3.0
 """Mahalanobis length of (a2, b2) by which the applied deviation is soft-thresholded."""
 
 _K = 5  # regressors: 1, cos A, sin A, cos 2A, sin 2A (the second harmonic last: its block of the Cholesky factor)
-_PAIRS = [(i, j) for i in range(_K) for j in range(i, _K)]
 
 
-class SoftFieldFields(NamedTuple):
-    """Sums over the used samples, weighted by metres: n_ij of x_i x_j (i <= j), b_i of x_i ln|B|, ll of ln|B|^2;
-    x = (1, cos A, sin A, cos 2A, sin 2A)."""
-
-    n00: jnp.ndarray
-    n01: jnp.ndarray
-    n02: jnp.ndarray
-    n03: jnp.ndarray
-    n04: jnp.ndarray
-    n11: jnp.ndarray
-    n12: jnp.ndarray
-    n13: jnp.ndarray
-    n14: jnp.ndarray
-    n22: jnp.ndarray
-    n23: jnp.ndarray
-    n24: jnp.ndarray
-    n33: jnp.ndarray
-    n34: jnp.ndarray
-    n44: jnp.ndarray
-    b0: jnp.ndarray
-    b1: jnp.ndarray
-    b2: jnp.ndarray
-    b3: jnp.ndarray
-    b4: jnp.ndarray
-    ll: jnp.ndarray
+SoftFieldFields = NamedTuple("SoftFieldFields", [(name, jnp.ndarray) for name in (*_ne.sum_fields(_K), "ll")])
+SoftFieldFields.__doc__ = """Sums over the used samples, weighted by metres: n_ij of x_i x_j (i <= j), b_i of
+x_i ln|B| (the normal equations, jaxmodel/normal_equations.py), ll of ln|B|^2; x = (1, cos A, sin A, cos 2A, sin 2A)."""
 
 
 SoftFieldState = packed_state(SoftFieldFields, "SoftFieldState",
@@ -97,8 +74,9 @@ def init_soft_field_state() -> SoftFieldState:
 
 def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
     """One sample: ``heading`` the compass heading A before any soft-iron correction (rad), ``harmonics_of_a`` its
-    harmonics (``soft_iron.harmonics``: its last two, sin 2A and cos 2A, are used), |B| ``b_m`` and B_E per heading ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the
-    compass valid and the vehicle moving, ``reset`` (bool) start the sums again first.  Returns the state."""
+    harmonics (``soft_iron.harmonics``: its last two, sin 2A and cos 2A, are used), |B| ``b_m`` and B_E per heading
+    ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the compass valid and the vehicle moving, ``reset`` (bool)
+    start the sums again first.  Returns the state."""
     # A sample not in use may carry anything (a heading of 1e308): it must not reach the sums, not even times 0.
     s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a[-2:])
     heading = jnp.where(use, heading, 0.0)
@@ -107,32 +85,18 @@ def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
     near = jnp.abs(jnp.log(safe_m / jnp.where(use, b_e, 1.0))) < FIELD_GATE
     w = jnp.where(use & near, d_t, 0.0)
     ln_b = jnp.log(safe_m)
-    terms = [x[i] * x[j] for i, j in _PAIRS] + [x[i] * ln_b for i in range(_K)] + [ln_b * ln_b]
+    terms = [x[i] * x[j] for i, j in _ne.pairs(_K)] + [x[i] * ln_b for i in range(_K)] + [ln_b * ln_b]
     vector = jnp.where(computed_once(reset)[..., None], 0.0, sf.vector)
     return SoftFieldState(vector + w[..., None] * jnp.stack(terms, axis=-1))
 
 
 def _cholesky_solve(f, centre):
     """The normal equations with the ridge prior RIDGE_M centred at (0, 0, 0, a2_0, b2_0) = ``centre``, by a Cholesky
-    factor written out (5 x 5; the native FMU lowers it).  Returns (c, y, low) as lists: the coefficients, the
+    factor written out (jaxmodel/normal_equations.py).  Returns (c, y, low) as lists: the coefficients, the
     forward-solved right-hand side y = L^-1 (b + R c_0) (so L^T c = y) and the factor L."""
-    m = [[None] * _K for _ in range(_K)]
-    for i, j in _PAIRS:
-        m[i][j] = m[j][i] = getattr(f, f"n{i}{j}") + (RIDGE_M if i == j and i > 0 else 0.0)
-    m[0][0] = m[0][0] + 1e-6
-    low = [[None] * _K for _ in range(_K)]
-    for j in range(_K):
-        low[j][j] = safe_sqrt(m[j][j] - sum((low[j][k] * low[j][k] for k in range(j)), 0.0), floor=1e-30)
-        for i in range(j + 1, _K):
-            low[i][j] = (m[i][j] - sum((low[i][k] * low[j][k] for k in range(j)), 0.0)) / low[j][j]
+    m = _ne.normal_matrix(f, _K, [1e-6] + [RIDGE_M] * (_K - 1))
     rhs = [f.b0, f.b1, f.b2, f.b3 + RIDGE_M * centre[0], f.b4 + RIDGE_M * centre[1]]
-    y = []
-    for i in range(_K):
-        y.append((rhs[i] - sum((low[i][k] * y[k] for k in range(i)), 0.0)) / low[i][i])
-    c = [None] * _K
-    for i in reversed(range(_K)):
-        c[i] = (y[i] - sum((low[k][i] * c[k] for k in range(i + 1, _K)), 0.0)) / low[i][i]
-    return c, y, low
+    return _ne.cholesky_solve(m, rhs)
 
 
 NO_TABLE = (0.0, 0.0)

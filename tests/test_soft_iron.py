@@ -9,10 +9,12 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 import jaxmodel as jm
+from jaxmodel import normal_equations
 from jaxmodel import soft_iron as si
 from jaxmodel import soft_iron_field as sf
 
-_SUMS = tuple(n for n in si.SoftIronFields._fields if n.startswith(("n_", "b_")))
+_SUMS = tuple(normal_equations.sum_fields(si._K))
+assert set(_SUMS) < set(si.SoftIronFields._fields) and len(_SUMS) == 20
 """The regression's normal matrix and right-hand side: what a sample teaches."""
 
 
