@@ -83,7 +83,8 @@ def test_recovers_a_first_harmonic_beside_the_second():
     applied = np.asarray(si.deviation(ss, si.harmonics(grid)))
     amp1 = np.hypot(p1, q1)
     expected = ((amp1 - si.FIRST_HARMONIC_FLOOR) / amp1 * (p1 * np.sin(grid) + q1 * np.cos(grid))
-                + (np.hypot(p, q) - si.SOFT_IRON_FLOOR) / np.hypot(p, q) * (p * np.sin(2 * grid) + q * np.cos(2 * grid)))
+                + (np.hypot(p, q) - si.SOFT_IRON_FLOOR) / np.hypot(p, q)
+                * (p * np.sin(2 * grid) + q * np.cos(2 * grid)))
     assert np.max(np.abs(applied - expected)) < 1e-9
 
 
