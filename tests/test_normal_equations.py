@@ -1,4 +1,4 @@
-"""The normal equations carried as named sums, solved by a Cholesky factor written out (jaxmodel/normal_equations.py)."""
+"""The normal equations as named sums, solved by a Cholesky factor written out (jaxmodel/normal_equations.py)."""
 
 from typing import NamedTuple
 
