@@ -419,7 +419,6 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         # The soft iron's deviation read from B_E per heading (jaxmodel/soft_iron_field.py), then what the wheels'
         # turns learned of the rest (jaxmodel/soft_iron.py), taken out of the compass.
         harmonics = _soft.harmonics(h_c_raw)
-        h_c_field = h_c_raw
         # Less what the deviation table's second harmonic took out already (a calibrated compass).
         table = _sfield.table_deviation(params.deviation_deg, deg(params.variation_deg - params.rotation_deg))
         h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics, table))
@@ -458,8 +457,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         restart = hard_iron_restart | fd["field_restart"]
         if _fdelta.learns_shift(config):
             restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
-        soft_field = _sfield.update(soft_field, h_c_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0),
-                                    restart)
+        soft_field = _sfield.update(soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(

@@ -77,8 +77,7 @@ SoftIronFields = NamedTuple("SoftIronFields", [(name, jnp.ndarray) for name in (
 SoftIronFields.__doc__ = """mean_delta (rad), mean_s1, mean_c1, mean_s, mean_c: the high-pass's exponential means
 of DELTA, sin A, cos A, sin 2A, cos 2A; turn (rad): the wheels' turn high-passed the same way; n_ij (m), b_i
 (rad m): the normal equations of the high-passed regressors x = (sin A, cos A, sin 2A, cos 2A, turn)
-(jaxmodel/normal_equations.py);
-started: 1 once a clean sample set the means."""
+(jaxmodel/normal_equations.py); started: 1 once a clean sample set the means."""
 
 
 SoftIronState = packed_state(SoftIronFields, "SoftIronState", "State of the online soft-iron deviation learner.")

@@ -72,15 +72,14 @@ def init_soft_field_state() -> SoftFieldState:
     return SoftFieldState.pack(SoftFieldFields(*([jnp.zeros((), jnp.float64)] * len(SoftFieldFields._fields))))
 
 
-def update(sf, heading, harmonics_of_a, b_m, b_e, d_t, use, reset):
-    """One sample: ``heading`` the compass heading A before any soft-iron correction (rad), ``harmonics_of_a`` its
-    harmonics (``soft_iron.harmonics``: its last two, sin 2A and cos 2A, are used), |B| ``b_m`` and B_E per heading
-    ``b_e`` (compass units), ``d_t`` (m), ``use`` (bool) the compass valid and the vehicle moving, ``reset`` (bool)
-    start the sums again first.  Returns the state."""
+def update(sf, harmonics_of_a, b_m, b_e, d_t, use, reset):
+    """One sample: ``harmonics_of_a`` = ``soft_iron.harmonics(A)``, (sin A, cos A, sin 2A, cos 2A) of the compass
+    heading A before any soft-iron correction, |B| ``b_m`` and B_E per heading ``b_e`` (compass units), ``d_t`` (m),
+    ``use`` (bool) the compass valid and the vehicle moving, ``reset`` (bool) start the sums again first.  Returns the
+    state."""
     # A sample not in use may carry anything (a heading of 1e308): it must not reach the sums, not even times 0.
-    s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a[-2:])
-    heading = jnp.where(use, heading, 0.0)
-    x = (jnp.ones_like(s2), jnp.cos(heading), jnp.sin(heading), c2, s2)
+    s1, c1, s2, c2 = (jnp.where(use, v, 0.0) for v in harmonics_of_a)
+    x = (jnp.ones_like(s2), c1, s1, c2, s2)
     safe_m = jnp.where(use, b_m, 1.0)
     near = jnp.abs(jnp.log(safe_m / jnp.where(use, b_e, 1.0))) < FIELD_GATE
     w = jnp.where(use & near, d_t, 0.0)

@@ -57,12 +57,16 @@ def built_fmus() -> dict[str, Path]:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if the build fails
         done = d / "built.json"
         if done.is_file() and json.loads(done.read_text()) == CUSTOM:
-            return {"estimator": d / "OdoCompass.fmu", "vehicle": d / "VehicleSensors.fmu",
-                    "params": d / "params.json", "dir": d}
+            return _fmu_paths(d)
         out = _build_fmus(d)
-        assert out["vehicle"] == d / "VehicleSensors.fmu", out
         done.write_text(json.dumps(CUSTOM))
         return out
+
+
+def _fmu_paths(d: Path) -> dict[str, Path]:
+    """Where ``_build_fmus(d)`` puts the FMUs and their parameter file."""
+    return {"estimator": d / "OdoCompass.fmu", "vehicle": d / "VehicleSensors.fmu", "params": d / "params.json",
+            "dir": d}
 
 
 def _build_fmus(d: Path) -> dict[str, Path]:
@@ -72,12 +76,11 @@ def _build_fmus(d: Path) -> dict[str, Path]:
     from fmu.build import build_vehicle
     from identification.cli import main
 
-    params = d / "params.json"
-    params.write_text(json.dumps(CUSTOM))
-    est = d / "OdoCompass.fmu"
-    assert main(["build-fmu", "--params", str(params), "--out", str(est)]) == 0
-    veh = build_vehicle(d / "VehicleSensors.fmu", params)
-    return {"estimator": est, "vehicle": veh, "params": params, "dir": d}
+    out = _fmu_paths(d)
+    out["params"].write_text(json.dumps(CUSTOM))
+    assert main(["build-fmu", "--params", str(out["params"]), "--out", str(out["estimator"])]) == 0
+    assert build_vehicle(out["vehicle"], out["params"]) == out["vehicle"]
+    return out
 
 
 @pytest.fixture(scope="module")

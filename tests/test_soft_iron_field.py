@@ -32,7 +32,7 @@ def _learn(angles, magnitudes, d_t=1.0, b_e=None, use=None, reset=None):
 
     def body(state, x):
         a, m, e, u, r = x
-        return sf.update(state, a, si.harmonics(a), m, e, jnp.asarray(d_t), u, r), None
+        return sf.update(state, si.harmonics(a), m, e, jnp.asarray(d_t), u, r), None
 
     xs = tuple(jnp.asarray(v) for v in (angles, magnitudes, b_e, use, reset))
     return jax.lax.scan(body, sf.init_soft_field_state(), xs)[0]
@@ -100,10 +100,10 @@ def test_samples_beyond_the_gate_or_unused_or_standing_teach_nothing():
     phi, mag = _readings(0.05, 0.0, a, noise=0.1)
     base = _learn(phi, mag)
     for extra in ({"b_e": mag[-1] / 1.3, "use": True}, {"b_e": mag[-1], "use": False}):
-        state = sf.update(base, jnp.asarray(phi[-1]), si.harmonics(jnp.asarray(phi[-1])), jnp.asarray(mag[-1]),
+        state = sf.update(base, si.harmonics(jnp.asarray(phi[-1])), jnp.asarray(mag[-1]),
                           jnp.asarray(extra["b_e"]), jnp.asarray(1.0), jnp.asarray(extra["use"]), jnp.asarray(False))
         np.testing.assert_array_equal(np.asarray(state.vector), np.asarray(base.vector))
-    standing = sf.update(base, jnp.asarray(phi[-1]), si.harmonics(jnp.asarray(phi[-1])), jnp.asarray(mag[-1]),
+    standing = sf.update(base, si.harmonics(jnp.asarray(phi[-1])), jnp.asarray(mag[-1]),
                          jnp.asarray(mag[-1]), jnp.asarray(0.0), jnp.asarray(True), jnp.asarray(False))
     np.testing.assert_array_equal(np.asarray(standing.vector), np.asarray(base.vector))
 
@@ -130,7 +130,7 @@ def test_state_stays_finite(heading, b_m, b_e, d_t, use, reset):
         use = False
     a = np.cumsum(np.full(500, 2 * np.pi / 250.0))
     phi, mag = _readings(0.05, 0.02, a, noise=0.1)
-    state = sf.update(_learn(phi, mag), jnp.asarray(heading), si.harmonics(jnp.asarray(heading)),
+    state = sf.update(_learn(phi, mag), si.harmonics(jnp.asarray(heading)),
                       jnp.asarray(abs(b_m)), jnp.asarray(abs(b_e)), jnp.asarray(d_t), jnp.asarray(use),
                       jnp.asarray(reset))
     assert np.all(np.isfinite(np.asarray(state.vector)))
@@ -143,7 +143,7 @@ def test_gradients_match_finite_differences():
     state = _learn(phi, mag)
 
     def f(heading, b_m, table_p):
-        out = sf.update(state, heading, si.harmonics(heading), b_m, jnp.asarray(20.0), jnp.asarray(1.0),
+        out = sf.update(state, si.harmonics(heading), b_m, jnp.asarray(20.0), jnp.asarray(1.0),
                         jnp.asarray(True), jnp.asarray(False))
         return sf.deviation(out, si.harmonics(heading + 0.3), (table_p, 0.5 * table_p))
 
