@@ -8,8 +8,12 @@ from pathlib import Path
 # The suite's time is mostly XLA:CPU compiling the estimator's scan (hundreds of programs: every module clears the
 # in-memory caches below, every CLI or FMU subprocess starts empty).  LLVM's backend optimisation off compiles them
 # ~25 % faster end to end (tests/test_scenarios.py + test_model.py: 354 -> 265 s); it changes the generated code's
-# speed, not the float64 operations XLA asked for.  Inherited by the subprocesses; bench/ keeps the default.
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
+# speed, not the float64 operations XLA asked for.  XLA:CPU's fusion emitters off (the older loop emitters) compile
+# the default filter's reverse pass in 10.1 s against 17.2 s (stop 47, one process on an idle machine); its gradient
+# agrees to 4e-15 relative.  Inherited by the subprocesses; bench/ keeps the default (the emitters off run a 64-drive
+# vmapped batch ~20 % slower: bench_run.py).
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                           + " --xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false").strip()
 from identification import compile_cache  # noqa: E402 (imports no jax)
 
 # One folder for the whole run, shared by the xdist workers: the controller imports this file before it starts
