@@ -263,6 +263,22 @@ CAPTURE_RATE_Z = 6.0
 gave a "significant" 1.2e-3 rad/m at 2.9 sigmas after 160 m; a 0.5 % mismatch is 3e-3 rad/m on a 1.5 m track)."""
 
 
+CORRECTED_RELATIVE = (1e-4, 3e-4)
+"""The applied ratio differs from the parameters' dpp_right / dpp_left by more than these (relative): the tyres may
+differ from the file (from the first), they do and the calibration has found it (from the second: ``corrected``)."""
+
+
+def corrected(cs_ratio, params):
+    """How surely the applied ratio has moved from the parameters' k0, in [0, 1]: a smoothstep t^2 (3 - 2 t) in
+    |k / k0 - 1| between the two CORRECTED_RELATIVE (exactly 0 below the first, so drives whose tyres match the file
+    are untouched).  A found mismatch leaves the calibrated ratio a residual of 1-3e-5 (tens of µrad/m of wheel drift,
+    docs/tuning.md stop 47) that the heading filter should follow (``offset_filter.follow``)."""
+    low, high = CORRECTED_RELATIVE
+    relative = jnp.abs(safe_div(cs_ratio, params.dpp_right / params.dpp_left, fallback=1.0) - 1.0)
+    t = jnp.clip((relative - low) / (high - low), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
 def capture_rate(params, cs, rate, track, capture):
     """Take a drift of the wheel heading, ``rate`` (rad/m) as the rate filter measures it, into the ratio.
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
 from . import heading_filter as _hf
@@ -75,8 +76,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
                                tilt, d_lost, drift_significant, dt=odo["dt"])
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
-    steady, shown = _offset.follow(params, steady, offset, initializing, d_t,
-                                   hold_on_drift=not captures_drift(config))
+    steady, shown = _offset.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
+                                   calibrated=_cal.corrected(state.calibration.ratio, params))
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count

@@ -506,7 +506,11 @@ def count_since_large_drift(params, rate_filter, previous, d_t):
     return _added(rate_filter, _SINCE_DRIFT_ONEHOT, since - rate_filter.since_drift)
 
 
-def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
+CALIBRATED_SHOW_FRACTION = 0.1
+"""filter_follow_show_rate is this much smaller once the calibration has moved the ratio (``follow``)."""
+
+
+def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, calibrated=0.0):
     """The steady F-DELTA and the heading it shows: drawn to the rate filter while the wheels drift.
 
     The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
@@ -524,6 +528,12 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
       significant rate larger than filter_follow_hold_rate (``large_drift``).  After a drift the
       calibration takes out most of it within kilometres, and what remains (tens of µrad/m, no longer
       "significant") the rate filter still follows while the steady one would lag by degrees.
+
+    ``calibrated`` (``calibration.corrected``, in [0, 1]): the calibration has moved the ratio from the parameters'.
+    The show rate is then CALIBRATED_SHOW_FRACTION of filter_follow_show_rate: the calibrated ratio's residual of
+    1-3e-5 drifts the wheels by 10-30 µrad/m, below the show rate, and on a long highway the steady filter lagged it by
+    degrees (independent simulator, the tyres' mismatch hidden from the parameters: docs/tuning.md, stop 47).  Drives
+    whose tyres match the file keep the full show rate, which keeps a hill's fake rate out (highway/hills/105).
 
     Before stop 30 a significant rate was copied into the steady state too: hills drives of seeds 101-109
     (36) 1.41 deg against 1.23 deg now (docs/tuning.md, stop 30).  ``since_drift`` of the steady filter counts the
@@ -545,8 +555,8 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True):
     s_delta = steady.delta
     blended = blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since)
     # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
-    w_rate = w_rate * jax.nn.sigmoid(FOLLOW_STEEPNESS * (jnp.abs(f.beta) - params.filter_follow_show_rate)
-                                     / (params.filter_follow_show_rate + 1e-6))
+    show_rate = params.filter_follow_show_rate * (1.0 - (1.0 - CALIBRATED_SHOW_FRACTION) * calibrated)
+    w_rate = w_rate * jax.nn.sigmoid(FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))

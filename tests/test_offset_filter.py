@@ -155,6 +155,34 @@ def test_follow_shows_a_significant_rate_without_taking_it_into_the_steady_state
     assert float(shown.p00) == pytest.approx(expected_p00, rel=0.05)
 
 
+def test_follow_shows_a_small_significant_rate_once_the_calibration_has_moved_the_ratio():
+    """A significant rate of 2e-5 rad/m, which the heading does not show while the tyres match the file, is shown once
+    the calibration has moved the ratio (``calibrated`` 1: the show rate falls to CALIBRATED_SHOW_FRACTION of
+    filter_follow_show_rate, below what the calibrated ratio's residual drifts the wheels); the steady state keeps its
+    own offset either way."""
+    params = jm.make_params()
+    rate = _rate_filter(params, 2e-5, 2e-6, 10.0)
+    shown_deg = {}
+    for calibrated in (0.0, 1.0):
+        steady, shown = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
+                                  hold_on_drift=False, calibrated=calibrated)
+        assert float(steady.delta) == pytest.approx(0.0, abs=1e-12)
+        shown_deg[calibrated] = np.degrees(float(shown.delta))
+    assert shown_deg[0.0] == pytest.approx(0.0, abs=0.05) and shown_deg[1.0] == pytest.approx(10.0, abs=0.05)
+
+
+@pytest.mark.parametrize("relative, expected", [(0.0, 0.0), (5e-5, 0.0), (1e-4, 0.0), (2e-4, 0.5), (3e-4, 1.0),
+                                                (-0.013, 1.0)])
+def test_corrected_is_a_smoothstep_in_the_ratios_relative_move(relative, expected):
+    """calibration.corrected: exactly 0 up to 1e-4 of the parameters' ratio (tyres that match the file leave every
+    output as it was), 1 from 3e-4, t^2 (3 - 2 t) between."""
+    from jaxmodel import calibration as cal
+
+    params = jm.make_params(dpp_left=0.02, dpp_right=0.0201)
+    k0 = 0.0201 / 0.02
+    assert float(cal.corrected(jnp.asarray(k0 * (1.0 + relative)), params)) == pytest.approx(expected, abs=1e-9)
+
+
 def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_the_calibration():
     """Within filter_follow_hold_m of a restart (the calibration captured a drift) the steady filter takes the rate
     filter's state, rate taken out; with the calibration off (hold_on_drift) a large significant rate starts the hold,
