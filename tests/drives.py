@@ -76,3 +76,26 @@ def city_blocks(n_blocks=6, block=120.0, speed=10.0, radius=15.0, sign=1.0):
         segs.append((math.pi / 2 * radius, s / radius, speed * 0.7))
     segs.append((block, 0.0, speed))
     return segs
+
+
+def synthetic_columns(n=120, dt=0.1, speed=10.0, turn_rate=0.15, start_pulses=(65400, 65000), dpp=0.02,
+                      track=1.55, field=40.0, seed=0):
+    """A small drive: straight, a right turn, straight; counters start near the wrap and wrap at 2**16.
+
+    Rear-axle geometry (dD = dpsi T_R), exact pulse counts, uneven time steps.
+    """
+    rng = np.random.default_rng(seed)
+    steps = dt * (1.0 + 0.2 * rng.uniform(-1.0, 1.0, n))
+    t = np.concatenate([[0.0], np.cumsum(steps[1:])]) + 1000.0
+    rate = np.where((np.arange(n) > n // 4) & (np.arange(n) < n // 2), turn_rate, 0.0)
+    return rear_axle_columns(t, rate, speed, dpp, track, field, start_pulses, 65536)
+
+
+def assert_same(a, b, name=""):
+    """a and b equal to the bit: same shape, NaN where NaN, and the sign of every zero."""
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape, name
+    assert np.array_equal(a, b, equal_nan=True), name
+    # bit-exact for floats (array_equal treats -0.0 == 0.0)
+    if a.dtype.kind == "f" and b.dtype.kind == "f":
+        assert np.array_equal(np.signbit(a), np.signbit(b)), name

@@ -1,5 +1,5 @@
 """Drive logs (SPEC §4): exact round trips in CSV, Parquet and MDF4, refusal of bad logs with one
-line naming file/row/column, NaN handling of optional columns, and batching of drives."""
+line naming file/row/column, NaN handling of optional columns (batches of drives: test_drive_batching.py)."""
 
 import math
 
@@ -10,26 +10,12 @@ from hypothesis import strategies as st
 
 import jaxmodel
 from identification import DriveLogError
-from identification.drive_log import (INTEGER_COLUMNS, Drive, drive_from_columns, read_drive, read_table,
-                                      stack_drives, stack_reference, wrap_deg, wrap_rad, write_drive)
+from identification.drive_log import (INTEGER_COLUMNS, Drive, drive_from_columns, read_drive, read_table, wrap_deg,
+                                      wrap_rad, write_drive)
 
-from drives import rear_axle_columns
+from drives import assert_same, synthetic_columns
 
 FORMATS = ("csv", "parquet", "mf4")
-MODULUS = 65536
-
-
-def synthetic_columns(n=120, dt=0.1, speed=10.0, turn_rate=0.15, start_pulses=(65400, 65000), dpp=0.02,
-                      track=1.55, field=40.0, seed=0):
-    """A small drive: straight, a right turn, straight; counters start near the wrap and wrap at 2**16.
-
-    Rear-axle geometry (dD = dpsi T_R), exact pulse counts, uneven time steps.
-    """
-    rng = np.random.default_rng(seed)
-    steps = dt * (1.0 + 0.2 * rng.uniform(-1.0, 1.0, n))
-    t = np.concatenate([[0.0], np.cumsum(steps[1:])]) + 1000.0
-    rate = np.where((np.arange(n) > n // 4) & (np.arange(n) < n // 2), turn_rate, 0.0)
-    return rear_axle_columns(t, rate, speed, dpp, track, field, start_pulses, MODULUS)
 
 
 def with_optional(cols):
@@ -42,15 +28,6 @@ def with_optional(cols):
     out["fix_north_m"] = np.linspace(5.0, -5.0, n)
     out["fix_valid"] = (np.arange(n) % 10 == 0).astype(np.int64)
     return out
-
-
-def assert_same(a, b, name=""):
-    a, b = np.asarray(a), np.asarray(b)
-    assert a.shape == b.shape, name
-    assert np.array_equal(a, b, equal_nan=True), name
-    # bit-exact for floats (array_equal treats -0.0 == 0.0)
-    if a.dtype.kind == "f" and b.dtype.kind == "f":
-        assert np.array_equal(np.signbit(a), np.signbit(b)), name
 
 
 # ----------------------------------------------------------------------------------------------
@@ -520,89 +497,6 @@ def test_mf4_master_channel_is_time_s(tmp_path):
         assert master.name == "time_s"
         names = [c.name for c in mdf.groups[0].channels]
     assert sorted(names) == sorted(synthetic_columns(n=2))
-
-
-# ----------------------------------------------------------------------------------------------
-# batching
-
-
-def test_stack_drives_pads_with_a_standing_vehicle():
-    d1 = drive_from_columns(synthetic_columns(n=30, seed=1), source="one")
-    d2 = drive_from_columns(synthetic_columns(n=45, seed=2), source="two")
-    inputs, mask = stack_drives([d1, d2])
-    assert isinstance(inputs, jaxmodel.Inputs)
-    for k in jaxmodel.Inputs._fields:
-        assert getattr(inputs, k).shape == (2, 45), k
-    assert mask.shape == (2, 45) and mask.dtype == np.float64
-    assert mask[0].tolist() == [1.0] * 30 + [0.0] * 15 and np.all(mask[1] == 1.0)
-    t = inputs.time_s[0]
-    last_step = d1.inputs.time_s[-1] - d1.inputs.time_s[-2]
-    assert np.allclose(np.diff(t[29:]), last_step) and np.all(np.diff(t) > 0)
-    assert np.all(inputs.left_pulses[0, 30:] == d1.inputs.left_pulses[-1])
-    assert np.all(inputs.right_pulses[0, 30:] == d1.inputs.right_pulses[-1])
-    assert np.all(inputs.compass_x[0, 30:] == d1.inputs.compass_x[-1])
-    assert np.all(inputs.compass_y[0, 30:] == d1.inputs.compass_y[-1])
-    assert np.all(inputs.map_valid[0, 30:] == 0.0) and np.all(inputs.fix_valid[0, 30:] == 0.0)
-    for k in jaxmodel.Inputs._fields:
-        assert_same(getattr(inputs, k)[1], getattr(d2.inputs, k), k)
-        assert_same(getattr(inputs, k)[0, :30], getattr(d1.inputs, k), k)
-
-    ref, ref_mask = stack_reference([d1, d2])
-    assert ref.shape == (2, 45) and np.all(np.isfinite(ref))
-    assert np.array_equal(ref_mask, mask)
-
-
-def test_padding_a_stacked_batch_equals_stacking_to_that_length():
-    """fleet_fit.pad_batch (arrays) and stack_drives (drives) pad by the one rule of drive_log.pad_inputs."""
-    from identification.fleet_fit import pad_batch
-
-    drives = [drive_from_columns(synthetic_columns(n=n, seed=n), source=str(n)) for n in (30, 45)]
-    inputs, mask = stack_drives(drives)
-    ref = np.ones_like(mask)
-    padded, padded_mask, padded_ref = pad_batch(inputs, mask, ref, 64)
-    direct, direct_mask = stack_drives(drives, length=64)
-    for k in jaxmodel.Inputs._fields:
-        assert_same(getattr(padded, k), getattr(direct, k), k)
-    assert np.array_equal(padded_mask, direct_mask)
-    assert padded_ref.shape == (2, 64) and np.all(padded_ref[:, 45:] == 0.0)
-    assert pad_batch(inputs, mask, ref, 45)[0] is inputs  # nothing to pad
-
-
-def test_stack_drives_single_sample_and_missing_reference():
-    cols = synthetic_columns(n=1)
-    d1 = drive_from_columns(cols)
-    d2 = drive_from_columns(synthetic_columns(n=3))
-    inputs, mask = stack_drives([d1, d2])
-    assert np.all(np.diff(inputs.time_s[0]) > 0) and mask[0].tolist() == [1.0, 0.0, 0.0]
-    cols = synthetic_columns(n=3)
-    cols["ref_heading_deg"][1] = np.nan
-    _, ref_mask = stack_reference([drive_from_columns(cols)])
-    assert ref_mask.tolist() == [[1.0, 0.0, 1.0]]
-    del cols["ref_heading_deg"]
-    with pytest.raises(DriveLogError):
-        stack_reference([drive_from_columns(cols, source="noref")])
-    with pytest.raises(ValueError):
-        stack_drives([])
-
-
-def test_stacked_batch_matches_single_runs():
-    params = jaxmodel.make_params(sensor_axle="rear")
-    drives = [drive_from_columns(synthetic_columns(n=n, seed=n)) for n in (40, 64)]
-    inputs, mask = stack_drives(drives)
-    batch = jaxmodel.run_batch(params, inputs)
-    assert drives[1].n_samples == inputs.time_s.shape[1]
-    for b, d in enumerate(drives):
-        # one compiled shape: the scan is causal, so the padded row's real part is the drive's run
-        padded_row = jaxmodel.Inputs(*(np.asarray(v)[b] for v in inputs))
-        single = jaxmodel.run(params, padded_row)
-        n = d.n_samples
-        for k in ("heading", "x", "y", "wheel_heading"):
-            np.testing.assert_allclose(np.asarray(getattr(batch, k))[b, :n], np.asarray(getattr(single, k))[:n],
-                                       rtol=0, atol=1e-12, err_msg=k)
-        # padding is a standing vehicle: the position does not move
-        x, y = np.asarray(batch.x)[b], np.asarray(batch.y)[b]
-        assert np.all(x[n:] == x[n - 1]) and np.all(y[n:] == y[n - 1])
-    assert np.asarray(batch.heading).dtype == np.float64
 
 
 @pytest.mark.parametrize("content", [b"MDF     4.10    " + b"\xff" * 300, b"MDF     4.10    garbage" * 10],
