@@ -94,15 +94,6 @@ def run_estimate(cli, drive, params, out, mode, extra):
     return p.returncode, lines, time.time() - t0, cmd
 
 
-def hidden_mismatch_params(params_path, pj):
-    """A copy of the parameter file with dpp_left = dpp_right = their mean; returns its path."""
-    mean = 0.5 * (pj["dpp_left"] + pj["dpp_right"])
-    path = params_path[:-len(".params.json")] + ".hidden.params.json"
-    with open(path, "w") as f:
-        json.dump(dict(pj, dpp_left=mean, dpp_right=mean), f, indent=1)
-    return path
-
-
 def final_dpp_ratio(est_csv):
     """The last finite dpp_ratio of an estimate's output (its calibrated dpp_right / dpp_left)."""
     r = read_cols(est_csv, ["dpp_ratio"])["dpp_ratio"]
@@ -142,7 +133,7 @@ def main(argv=None):
             label = f"{kind} s{seed}"
             row = {}
             if a.hide_mismatch:
-                params = hidden_mismatch_params(params, pj)
+                params = sim.write_hidden_mismatch_params(params)
             for mode in modes:
                 out = drive[:-4] + f".est_{mode}.csv"
                 rc, lines, dt, cmd = run_estimate(cli, drive, params, out, mode, extra)

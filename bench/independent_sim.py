@@ -413,6 +413,18 @@ def make_drive(kind, seed, out_dir, *, duration=900.0, clean=False, disable=()):
     return csv_path, par_path
 
 
+def write_hidden_mismatch_params(params_path):
+    """Beside the drive's parameter file, a copy with dpp_left = dpp_right = their mean (a user who never measured the
+    tyres' mismatch: the calibration must find it), ``TAG.hidden.params.json``.  Returns its path."""
+    with open(params_path) as f:
+        params = json.load(f)
+    mean = 0.5 * (params["dpp_left"] + params["dpp_right"])
+    path = params_path[:-len(".params.json")] + ".hidden.params.json"
+    with open(path, "w") as f:
+        json.dump(dict(params, dpp_left=mean, dpp_right=mean), f, indent=1)
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kind", choices=KINDS, required=True)

@@ -113,9 +113,15 @@ def _coefficients(params, ratio):
     return two_m / (1.0 + ratio), two_m * ratio / (1.0 + ratio)
 
 
+def parameter_ratio(params):
+    """k0 = dpp_right / dpp_left of the parameters: where the calibration starts, what its corrections are bounded
+    around (cal_max_correction) and measured from (``corrected``)."""
+    return params.dpp_right / params.dpp_left
+
+
 def init_calibration_state(params):
     z = jnp.zeros((), jnp.float64)
-    ratio = jnp.asarray(params.dpp_right / params.dpp_left, jnp.float64)
+    ratio = jnp.asarray(parameter_ratio(params), jnp.float64)
     w0 = jnp.asarray(params.cal_prior_weight, jnp.float64)
     return CalibrationState.pack(CalibrationFields(
         dpp_left=jnp.asarray(params.dpp_left, jnp.float64), dpp_right=jnp.asarray(params.dpp_right, jnp.float64),
@@ -194,7 +200,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
 
     # Correction value and its intensity (claims 5-14).
     k_s = safe_div(str_left, str_right, fallback=1.0)
-    k0 = params.dpp_right / params.dpp_left
+    k0 = parameter_ratio(params)
     mean = cs.mean
     dpsi = wrap(cs.pend_heading - str_heading0)  # last joined window minus first
     tol = deg(params.cal_compass_tolerance_deg)
@@ -268,13 +274,13 @@ CORRECTED_RELATIVE = (1e-4, 3e-4)
 differ from the file (from the first), they do and the calibration has found it (from the second: ``corrected``)."""
 
 
-def corrected(cs_ratio, params):
-    """How surely the applied ratio has moved from the parameters' k0, in [0, 1]: a smoothstep t^2 (3 - 2 t) in
+def corrected(params, cs):
+    """How surely the applied ratio k has moved from the parameters' k0, in [0, 1]: a smoothstep t^2 (3 - 2 t) in
     |k / k0 - 1| between the two CORRECTED_RELATIVE (exactly 0 below the first, so drives whose tyres match the file
     are untouched).  A found mismatch leaves the calibrated ratio a residual of 1-3e-5 (tens of µrad/m of wheel drift,
     docs/tuning.md stop 47) that the heading filter should follow (``offset_filter.follow``)."""
     low, high = CORRECTED_RELATIVE
-    relative = jnp.abs(safe_div(cs_ratio, params.dpp_right / params.dpp_left, fallback=1.0) - 1.0)
+    relative = jnp.abs(cs.ratio / parameter_ratio(params) - 1.0)
     t = jnp.clip((relative - low) / (high - low), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
 
@@ -294,7 +300,7 @@ def capture_rate(params, cs, rate, track, capture):
     """
     k = cs.ratio
     c = rate * track * k / (1.0 + k)
-    k0 = params.dpp_right / params.dpp_left
+    k0 = parameter_ratio(params)
     lim = params.cal_max_correction * k0
     new_k = jnp.clip((k - c) / (1.0 + c), k0 - lim, k0 + lim)
     dpp_left, dpp_right = _coefficients(params, new_k)

@@ -77,7 +77,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                tilt, d_lost, drift_significant, dt=odo["dt"])
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
     steady, shown = _offset.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
-                                   calibrated=_cal.corrected(state.calibration.ratio, params))
+                                   calibrated=_cal.corrected(params, state.calibration))
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count

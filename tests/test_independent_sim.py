@@ -68,11 +68,8 @@ def test_a_hidden_tyre_mismatch_is_found_and_the_highway_heading_follows_its_res
     dpp)."""
     path, params_path = sim.make_drive("highway", 1, tmp_path, duration=2400.0)
     truth = json.loads(Path(params_path).read_text())
-    mean = 0.5 * (truth["dpp_left"] + truth["dpp_right"])
-    hidden = tmp_path / "hidden.params.json"
-    hidden.write_text(json.dumps(dict(truth, dpp_left=mean, dpp_right=mean)))
     drive = read_drive(path)
-    params, _ = checked_params(hidden)
+    params, _ = checked_params(sim.write_hidden_mismatch_params(params_path))
     cols = estimate_drive(params, drive, jm.Config())
     assert abs(cols["dpp_ratio"][-1] - truth["dpp_right"] / truth["dpp_left"]) < 1e-4, cols["dpp_ratio"][-1]
     assert _rmse_after_60_s(cols, drive) < 2.5

@@ -179,8 +179,11 @@ def test_corrected_is_a_smoothstep_in_the_ratios_relative_move(relative, expecte
     from jaxmodel import calibration as cal
 
     params = jm.make_params(dpp_left=0.02, dpp_right=0.0201)
-    k0 = 0.0201 / 0.02
-    assert float(cal.corrected(jnp.asarray(k0 * (1.0 + relative)), params)) == pytest.approx(expected, abs=1e-9)
+    start = cal.init_calibration_state(params)
+    assert float(cal.corrected(params, start)) == 0.0
+    k = jnp.asarray(0.0201 / 0.02 * (1.0 + relative))
+    moved = cal.CalibrationState.pack(start.fields()._replace(ratio=k))
+    assert float(cal.corrected(params, moved)) == pytest.approx(expected, abs=1e-9)
 
 
 def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_the_calibration():
