@@ -54,6 +54,11 @@ def time_constant_factor(params, sdd, e_w, e_c):
     return jnp.where(e_h > 0.0, (e_h + params.K1) / params.K1, params.K2 / (jnp.abs(e_h) + params.K2))
 
 
+MAP_HEADING_LIMIT_RAD = 1e4
+"""The largest map heading (rad, either sign) taken as a heading: a few thousand turns, where wrap's reduction
+still loses under 3e-12 rad; beyond is a corrupt sample, treated as no map heading."""
+
+
 def select_absolute_heading(params, h_c, h_w, estimate, map_heading, map_valid, unreliable_area):
     """Absolute direction signal and DELTA (FIG. 5, FIG. 8F).
 
@@ -62,14 +67,17 @@ def select_absolute_heading(params, h_c, h_w, estimate, map_heading, map_valid, 
     map_threshold_deg in either direction (two-way street, FIG. 7 block 7D).  Returns
     (absolute heading [rad], DELTA [rad], map_used [bool]).
     """
+    # A map heading beyond MAP_HEADING_LIMIT_RAD is no heading: wrap of 1e300 rad is rounding noise of any
+    # size (x - 2 pi floor(x / 2 pi) cancels 1e300 against 1e300), and it reached the Kalman course
+    # measurement as -4e230 rad (hypothesis, stop 48).
+    map_plausible = jnp.isfinite(map_heading) & (jnp.abs(map_heading) <= MAP_HEADING_LIMIT_RAD)
+    map_heading = jnp.where(map_plausible, map_heading, 0.0)
     forward = wrap(map_heading - estimate)
     backward = wrap(map_heading + jnp.pi - estimate)
     use_backward = jnp.abs(backward) < jnp.abs(forward)
-    street = jnp.where(use_backward, wrap(map_heading + jnp.pi), map_heading)
+    street = wrap(jnp.where(use_backward, map_heading + jnp.pi, map_heading))
     agrees = jnp.minimum(jnp.abs(forward), jnp.abs(backward)) < deg(params.map_threshold_deg)
-    map_finite = jnp.isfinite(map_heading)
-    map_used = (map_valid > 0.5) & (unreliable_area > 0.5) & agrees & map_finite
-    street = jnp.where(map_finite, street, 0.0)
+    map_used = (map_valid > 0.5) & (unreliable_area > 0.5) & agrees & map_plausible
     absolute = jnp.where(map_used, street, h_c)
     return absolute, wrap(absolute - h_w), map_used
 

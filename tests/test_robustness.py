@@ -125,6 +125,23 @@ def test_regression_clock_jump_after_a_turn_keeps_the_heading_wrapped_in_every_m
         assert np.all(np.abs(np.asarray(out.x)) < 1e3), mode  # no motion invented across the gap
 
 
+@pytest.mark.parametrize("map_heading", [1e300, -1e300, 1e17, 2e4])
+def test_regression_huge_map_heading_is_no_heading_in_every_mode(map_heading):
+    """Found by hypothesis (CI of stop 47, under the suite's XLA flags): a 1e300 rad map heading, valid, in a
+    compass-unreliable area, at a standstill then one pulse.  wrap(1e300) is rounding noise of any size, the
+    selector took it as the street and the Kalman course measurement made the heading -3.9e230 rad."""
+    z = np.zeros(N)
+    one = np.ones(N)
+    pulses = np.r_[z[:-1], 1.0]
+    inputs = jm.make_inputs(z, pulses, pulses, z, one, map_heading=np.full(N, map_heading), map_valid=one,
+                            compass_unreliable_area=one, fix_east_m=z, fix_north_m=one * 10, fix_valid=one)
+    for mode in jm.MODES:
+        out = _run_all[mode](jm.make_params(), inputs)
+        h = np.asarray(out.heading)
+        assert np.all(np.isfinite(h)) and np.all((h > -math.pi) & (h <= math.pi)), (mode, h)
+        assert np.allclose(h, math.pi / 2, atol=1e-6), (mode, h)  # the compass's north, no map heading
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.floats(-100.0, 100.0, allow_nan=False))
 def test_sin_polynomial_is_sin(angle):
