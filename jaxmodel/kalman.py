@@ -1,8 +1,8 @@
 """Kalman-filter mode, US 4,680,715 (``Config(mode="kalman")``).
 
-An error-state Kalman filter with seven states and small fixed-size jnp matrices:
+An error-state Kalman filter with eight states and small fixed-size jnp matrices:
 
-    x = [dth1, dth2, eps, dN, dE, bN, bE]
+    x = [dth1, dth2, eps, dN, dE, bN, bE, beta]
 
 * Course-error model of claim 1: dth = dth1 + dth2 + dth3, with dth1 a first-order
   Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma kf_gm_sigma_deg), dth2 a
@@ -10,6 +10,13 @@ An error-state Kalman filter with seven states and small fixed-size jnp matrices
   PSD kf_ramp_psd; dth2 also gets random-walk noise per second kf_drift_psd, per metre
   kf_drift_per_m and per turned radian kf_turn_sigma), and dth3 Gaussian white noise
   (kf_white_sigma_deg, not a state).
+* The wheels' drift per metre beta (rad/m): dth2 also grows by beta s over a sample of s metres.  The seed's
+  ramp is per second; a left/right tyre mismatch turns the wheel course per metre (mismatch / track), 0.2-0.6
+  deg per metre for 0.5-1.5 % before the calibration (EP 0619873) has found it.  Without beta the filter held
+  the compass off on every such drive of the scenario matrix (50-90 deg RMSE, stop 48).  beta starts known
+  (kf_rate_sigma0 = 0: the parameters' ratio is taken as true) and is released while the complementary filter's
+  rate filter finds a large, significant drift (its variance then at least that rate's square and variance);
+  a new calibration shifts it by the change of the wheel course's rate (``rate_change``).
 * North/east position errors dN, dE of the position computer, fed by the course error of the
   dead-reckoned course: dN' = dN - s sin(th) dth2, dE' = dE + s cos(th) dth2 (s: corrected
   distance of the sample).
@@ -63,6 +70,10 @@ Steps of claim 1, per sample:
    then symmetrized.
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
 
+5. Re-acquisition (``_reacquire``): a course measurement that disagrees with the course by more than
+   filter_reacquire_large_deg for filter_reacquire_lost_m, or that is beyond the gate for filter_reacquire_m,
+   restarts dth1, dth2, eps from it.
+
 Without fixes the filter runs on the compass alone.  All noise parameters are kf_* entries of
 Params; everything is jnp with masks, so it is jit/vmap/grad-safe.  Their defaults were fitted by
 gradient descent on simulated drives (bench/tune_kalman.py, docs/calibration-kalman.md).
@@ -76,35 +87,41 @@ import jax.numpy as jnp
 import numpy as np
 
 from .angles import safe_div, wrap
-from .offset_filter import samples_per_measurement
+from .offset_filter import UNINITIALIZED_BOUND, lost_distance, samples_per_measurement
 from .params import deg
 
-N_STATES = 7
+N_STATES = 8
 MAX_DT_S = 60.0
 """Longest time step the error model propagates over (a logging gap counts as this)."""
 MAX_FIX_M = 1.0e7
 """Fixes (and a position computer) farther than this from the origin are not plausible (m)."""
 MAX_GATE_SCALE = 1.0e12
 """Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
-I_GM, I_DRIFT, I_RAMP, I_N, I_E, I_FIX_N, I_FIX_E = range(N_STATES)
-H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
-H_MAP = np.array([[0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
-H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0]])
+I_GM, I_DRIFT, I_RAMP, I_N, I_E, I_FIX_N, I_FIX_E, I_RATE = range(N_STATES)
+H_COMPASS = np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+H_MAP = np.array([[0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+H_FIX = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0]])
 
 
 class KalmanState(NamedTuple):
     x: jnp.ndarray        # east, m (position computer, CRE)
     y: jnp.ndarray        # north, m (position computer, CRN)
-    err: jnp.ndarray      # (7,) error-state estimate [dth1, dth2, eps, dN, dE, bN, bE] (rad, rad, rad/s, m x 4)
-    cov: jnp.ndarray      # (7, 7) its covariance
+    err: jnp.ndarray      # (8,) error-state estimate [dth1, dth2, eps, dN, dE, bN, bE, beta]
+    #                       (rad, rad, rad/s, m x 4, rad/m)
+    cov: jnp.ndarray      # (8, 8) its covariance
     speed: jnp.ndarray    # last plausible signed speed, m/s
     active: jnp.ndarray   # 1.0 once the wheel heading has been started (filter running)
     fixes: jnp.ndarray    # number of position fixes used
+    disagreement: jnp.ndarray  # running course innovation over filter_check_m (rad)
+    lost_m: jnp.ndarray        # metres driven with |disagreement| beyond filter_reacquire_large_deg
+    rejected_m: jnp.ndarray    # metres driven with every course measurement beyond the soft gate
+    fix_rejected: jnp.ndarray  # fixes in a row beyond the soft gate
+    reposition: jnp.ndarray    # 1.0: the next fix repositions (after a course restart or fixes rejected in a row)
 
 
 def initial_covariance(params):
     """P0 = diag(sigma_gm^2, sigma_heading0^2, sigma_ramp0^2, sigma_pos0^2, sigma_pos0^2, sigma_fix_gm^2,
-    sigma_fix_gm^2)."""
+    sigma_fix_gm^2, sigma_rate0^2)."""
     return jnp.diag(jnp.stack([
         deg(params.kf_gm_sigma_deg) ** 2,
         deg(params.kf_heading_sigma0_deg) ** 2,
@@ -113,13 +130,15 @@ def initial_covariance(params):
         params.kf_pos_sigma0_m ** 2,
         params.kf_fix_gm_sigma_m ** 2,
         params.kf_fix_gm_sigma_m ** 2,
+        params.kf_rate_sigma0 ** 2,
     ]))
 
 
 def init_kalman_state(params):
     z = jnp.zeros((), jnp.float64)
     return KalmanState(x=z, y=z, err=jnp.zeros((N_STATES,), jnp.float64), cov=initial_covariance(params),
-                       speed=z, active=z, fixes=z)
+                       speed=z, active=z, fixes=z, disagreement=z, lost_m=z, rejected_m=z,
+                       fix_rejected=z, reposition=z)
 
 
 def transition(params, dt, s, course, alpha=0.0):
@@ -135,17 +154,20 @@ def transition(params, dt, s, course, alpha=0.0):
     one = jnp.ones_like(dt)
     ef = jnp.exp(-dt / params.kf_fix_gm_tau_s)
     phi = jnp.stack([
-        jnp.stack([e1, z, z, z, z, z, z]),
-        jnp.stack([z, one, dt, z, z, z, z]),
-        jnp.stack([z, z, one, z, z, z, z]),
-        jnp.stack([z, -s * sn, z, one, z, z, z]),
-        jnp.stack([z, s * cs, z, z, one, z, z]),
-        jnp.stack([z, z, z, z, z, ef, z]),
-        jnp.stack([z, z, z, z, z, z, ef]),
+        jnp.stack([e1, z, z, z, z, z, z, z]),
+        jnp.stack([z, one, dt, z, z, z, z, s]),
+        jnp.stack([z, z, one, z, z, z, z, z]),
+        jnp.stack([z, -s * sn, z, one, z, z, z, z]),
+        jnp.stack([z, s * cs, z, z, one, z, z, z]),
+        jnp.stack([z, z, z, z, z, ef, z, z]),
+        jnp.stack([z, z, z, z, z, z, ef, z]),
+        jnp.stack([z, z, z, z, z, z, z, one]),
     ])
     q11 = sig_gm2 * (1.0 - e1 * e1)
+    q_rate = params.kf_rate_psd * jnp.abs(s)  # beta's random walk over the sample's metres
     q22 = (q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s)
-           + (params.kf_turn_sigma * alpha) ** 2)
+           + (params.kf_turn_sigma * alpha) ** 2 + q_rate * s * s / 3.0)
+    q28 = q_rate * s / 2.0
     q23 = q_ramp * dt ** 2 / 2.0
     q33 = q_ramp * dt
     along = (params.kf_speed_sigma * s) ** 2          # distance-scale error, along track
@@ -156,13 +178,14 @@ def transition(params, dt, s, course, alpha=0.0):
     qne = (along - cross) * sn * cs
     qf = params.kf_fix_gm_sigma_m ** 2 * (1.0 - ef * ef)
     q = jnp.stack([
-        jnp.stack([q11, z, z, z, z, z, z]),
-        jnp.stack([z, q22, q23, z, z, z, z]),
-        jnp.stack([z, q23, q33, z, z, z, z]),
-        jnp.stack([z, z, z, qnn, qne, z, z]),
-        jnp.stack([z, z, z, qne, qee, z, z]),
-        jnp.stack([z, z, z, z, z, qf, z]),
-        jnp.stack([z, z, z, z, z, z, qf]),
+        jnp.stack([q11, z, z, z, z, z, z, z]),
+        jnp.stack([z, q22, q23, z, z, z, z, q28]),
+        jnp.stack([z, q23, q33, z, z, z, z, z]),
+        jnp.stack([z, z, z, qnn, qne, z, z, z]),
+        jnp.stack([z, z, z, qne, qee, z, z, z]),
+        jnp.stack([z, z, z, z, z, qf, z, z]),
+        jnp.stack([z, z, z, z, z, z, qf, z]),
+        jnp.stack([z, q28, z, z, z, z, z, q_rate]),
     ])
     return phi, q
 
@@ -191,13 +214,14 @@ def _left(pattern, a, m):
     return jnp.stack(rows)
 
 
-PHI_PATTERN = np.array([[1, 0, 0, 0, 0, 0, 0],
-                        [0, 1, 1, 0, 0, 0, 0],
-                        [0, 0, 1, 0, 0, 0, 0],
-                        [0, 1, 0, 1, 0, 0, 0],
-                        [0, 1, 0, 0, 1, 0, 0],
-                        [0, 0, 0, 0, 0, 1, 0],
-                        [0, 0, 0, 0, 0, 0, 1]], dtype=bool)
+PHI_PATTERN = np.array([[1, 0, 0, 0, 0, 0, 0, 0],
+                        [0, 1, 1, 0, 0, 0, 0, 1],
+                        [0, 0, 1, 0, 0, 0, 0, 0],
+                        [0, 1, 0, 1, 0, 0, 0, 0],
+                        [0, 1, 0, 0, 1, 0, 0, 0],
+                        [0, 0, 0, 0, 0, 1, 0, 0],
+                        [0, 0, 0, 0, 0, 0, 1, 0],
+                        [0, 0, 0, 0, 0, 0, 0, 1]], dtype=bool)
 """Nonzeros of the transition matrix of ``transition`` (predict relies on it)."""
 
 
@@ -271,9 +295,80 @@ def map_noise(params, distance, dt=None):
     return r0 * _samples_per_measurement(params, distance, dt)
 
 
+COURSE_STATES = (I_GM, I_DRIFT, I_RAMP)
+
+
+def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_error, lost_elsewhere):
+    """Restart the course states from the course measurement when the filter has lost it (err, cov after the
+    course update; nu its innovation, d2 its Mahalanobis distance squared; course_error = wrap(H_W - measured
+    course)).
+
+    The seed is silent on a filter whose course error has run away from its own covariance.  It happens: a tyre
+    mismatch the parameters do not know turns the wheel course 0.2-0.6 deg per metre until the calibration
+    (EP 0619873) has found it, and the soft gate then holds the compass off for the rest of the drive (matrix
+    mismatch drives 70-150 deg RMSE, stop 48).  As the complementary filter's re-acquisition
+    (offset_filter.update): a running disagreement beyond filter_reacquire_large_deg for filter_reacquire_lost_m,
+    or every measurement beyond the gate for filter_reacquire_m, restarts dth1, dth2, eps at the measured course
+    with their initial covariance (the positions keep theirs; the next fix repositions them).  So does a restart of
+    the complementary filter as lost (``lost_elsewhere``: its finer judgement, a steady disagreement after
+    filter_reacquire_lost_steady_m, a garage left while standing) when the measurement, valid (``valid``; ``used``
+    also asks for motion), is that far from this filter's course too (parking/garage_start drives of the matrix:
+    14-35 deg RMSE without it, stop 48).  Returns (err, cov, restarted, the watch fields of KalmanState).
+    """
+    keep = jnp.exp(-jnp.abs(s) / params.filter_check_m)
+    disagreement = jnp.where(used, keep * ks.disagreement + (1.0 - keep) * nu, ks.disagreement)
+    far = used & (jnp.abs(disagreement) > deg(params.filter_reacquire_large_deg))
+    lost_m = jnp.where(far, ks.lost_m + lost_distance(jnp.abs(s), dt), jnp.where(used, 0.0, ks.lost_m))
+    rejected = used & (d2 > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
+    rejected_m = jnp.where(rejected, ks.rejected_m + jnp.abs(s), jnp.where(used, 0.0, ks.rejected_m))
+    far_now = jnp.abs(wrap(course_error - err[I_DRIFT])) > deg(params.filter_reacquire_large_deg)
+    restart = used & ((lost_m > params.filter_reacquire_lost_m) | (rejected_m > params.filter_reacquire_m)
+                      ) | (valid & lost_elsewhere & far_now)
+    course = np.zeros(N_STATES, dtype=bool)
+    course[list(COURSE_STATES)] = True
+    start = jnp.zeros(N_STATES).at[I_DRIFT].set(course_error)
+    block = course[:, None] | course[None, :]
+    err = jnp.where(restart & course, start, err)
+    cov = jnp.where(restart & block, p0, cov)
+    zero = jnp.zeros_like(disagreement)
+    return err, cov, restart, dict(disagreement=jnp.where(restart, zero, disagreement),
+                                   lost_m=jnp.where(restart, zero, lost_m), rejected_m=jnp.where(restart, zero, rejected_m))
+
+
+FIX_REACQUIRE_COUNT = 30
+"""Fixes in a row beyond the soft gate after which the next one repositions (30 s of 1-Hz fixes)."""
+REPOSITION_SIGMA_M = 1.0e5
+"""Position sigma (m) that a repositioning fix starts from: the fix, not the dead-reckoned position, decides."""
+
+
+def _reposition(cov, repositions):
+    """The covariance a repositioning fix is taken with: the position errors dN, dE uncorrelated with the rest,
+    of sigma REPOSITION_SIGMA_M, so that the fix moves the position and nothing else.
+
+    After a course restart the position computer has dead-reckoned with the wrong course (a drive started in a
+    garage: 1.5 km at 139 deg off), and the gated fixes pulled the restarted course 57 deg away again to explain
+    that position error (stop 48, highway/garage_start/101 with fixes); fixes rejected FIX_REACQUIRE_COUNT times
+    in a row say the same of the position."""
+    pos = np.zeros(N_STATES, dtype=bool)
+    pos[[I_N, I_E]] = True
+    cross = pos[:, None] | pos[None, :]
+    fresh = jnp.where(np.diag(pos), REPOSITION_SIGMA_M ** 2, 0.0)
+    return jnp.where(repositions & cross, fresh, cov)
+
+
+def bound(params, ks, initialized):
+    """Heading bound (rad) of the Kalman mode's course C_th = H_W - dth2^: the sigma of dth2, at least the running
+    disagreement with the compass while it is beyond filter_reacquire_large_deg (as offset_filter.bound);
+    offset_filter.UNINITIALIZED_BOUND before the start."""
+    sigma = jnp.sqrt(jnp.maximum(ks.cov[I_DRIFT, I_DRIFT], 0.0))
+    far = jnp.abs(ks.disagreement) > deg(params.filter_reacquire_large_deg)
+    sigma = jnp.where(far, jnp.maximum(sigma, jnp.abs(ks.disagreement)), sigma)
+    return jnp.where(initialized > 0.5, sigma, UNINITIALIZED_BOUND)
+
+
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
                 fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
-                enabled=True, dt_counts=None, held=False):
+                enabled=True, dt_counts=None, held=False, rate_change=0.0, rate_variance=0.0, lost_elsewhere=False):
     """One sample.  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
     dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp; dt_counts: the time
@@ -283,7 +378,9 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     map_heading, map_used: the street heading chosen by the map-heading selector (FIG. 8F) and
     whether it replaced the compass on this sample;
     odometer_ok: the odometer's own plausibility of the counts; initialized: H_W has been
-    started (1.0).  ``enabled`` is static: False (other modes) passes the state through.
+    started (1.0); rate_change: the change of the wheel course's rate per metre by a new left/right calibration
+    this sample (rad/m, model._calibrate), which beta^ follows; rate_variance: the variance beta^ is released to
+    (rad^2/m^2); lost_elsewhere: the complementary filter restarted as lost on this sample (see _reacquire).  ``enabled`` is static: False (other modes) passes the state through.
     """
     if not enabled:
         return ks, wheel_heading, ks.x, ks.y
@@ -314,6 +411,8 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     err = jnp.where(active, ks.err, 0.0)
     cov = jnp.where(active, ks.cov, p0)
     err = err.at[I_DRIFT].add(jnp.where(active & ~course_ok, alpha, 0.0))
+    err = err.at[I_RATE].add(jnp.where(active, rate_change, 0.0))
+    cov = cov.at[I_RATE, I_RATE].max(jnp.where(active, rate_variance, 0.0))
     course_est = err[I_DRIFT]
     course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
     phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0))
@@ -336,18 +435,27 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
     r_c = jnp.where(map_used, map_noise(params, s, dt), compass_noise(params, e_c, s, dt))
     use_c = active & (compass_ok | map_used) & (jnp.abs(s) > 0.0)
-    err_u, cov_u, _ = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
-                             pattern=H_COMPASS != 0.0)
+    err_u, cov_u, d2_c = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
+                                pattern=H_COMPASS != 0.0)
+    valid_c = active & (compass_ok | map_used)
+    err_u, cov_u, restarted, watch = _reacquire(params, ks, err_u, cov_u, p0, nu_c, d2_c, use_c, valid_c, s, dt,
+                                                wrap(wheel_heading - course_meas), lost_elsewhere)
 
-    # 4b. Position fix update (the first fix without the gate).
+    # 4b. Position fix update (the first fix without the gate; see _reposition).
     fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
               & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
     fe = jnp.where(fix_ok, fix_east, 0.0)
     fn = jnp.where(fix_ok, fix_north, 0.0)
     nu_f = jnp.stack([north - fn - (err_u[I_N] - err_u[I_FIX_N]), east - fe - (err_u[I_E] - err_u[I_FIX_E])])
     r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
-    gate_f = jnp.where(ks.fixes > 0.5, params.kf_gate_sigma, 0.0)
-    err_u, cov_u, _ = update(err_u, cov_u, nu_f, H_FIX, r_f, fix_ok, gate_f)
+    repositions = fix_ok & (ks.reposition > 0.5)
+    cov_u = _reposition(cov_u, repositions)
+    gate_f = jnp.where((ks.fixes > 0.5) & ~repositions, params.kf_gate_sigma, 0.0)
+    err_u, cov_u, d2_f = update(err_u, cov_u, nu_f, H_FIX, r_f, fix_ok, gate_f)
+    far = fix_ok & ~repositions & (d2_f > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
+    fix_rejected = jnp.where(fix_ok, jnp.where(far, ks.fix_rejected + 1.0, 0.0), ks.fix_rejected)
+    reposition = restarted | (fix_rejected >= FIX_REACQUIRE_COUNT) | ((ks.reposition > 0.5) & ~repositions)
+    fix_rejected = jnp.where(fix_rejected >= FIX_REACQUIRE_COUNT, 0.0, fix_rejected)
 
     # Feed the position corrections C(RN), C(RE) back and reset their error states.
     north = north - err_u[I_N]
@@ -362,5 +470,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
         speed=speed,
         active=jnp.where(initialized > 0.5, 1.0, 0.0),
         fixes=ks.fixes + jnp.where(fix_ok, 1.0, 0.0),
+        **{k: jnp.where(active, v, 0.0) for k, v in watch.items()},
+        fix_rejected=jnp.where(active, fix_rejected, 0.0), reposition=jnp.where(active & reposition, 1.0, 0.0),
     )
     return new, heading, east, north

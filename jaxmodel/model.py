@@ -365,7 +365,8 @@ def _learns_soft_iron(config):
 def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, initialized):
     """EP 0619873: the left/right dpp calibration; in the robust complementary mode a large, significant
     drift of the rate filter is captured into the ratio at once.  A new calibration shifts the offset's
-    rate and may restart the steady filter's follow hold.  Returns (calibration state, offset, steady)."""
+    rate and may restart the steady filter's follow hold.  Returns (calibration state, offset, steady, the change
+    of the wheel heading's rate per metre [rad/m], for the Kalman mode's beta)."""
     robust = config.robust
     cal_state = _cal.calibration_step(
         params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
@@ -377,17 +378,19 @@ def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, init
         capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
         cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
     # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
+    rate_change = jnp.zeros_like(odo["track"])
     if config.calibration and robust:
         rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
         rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
-        offset = _offset.shift_rate(offset, (rel_left - rel_right) / odo["track"])
+        rate_change = (rel_left - rel_right) / odo["track"]
+        offset = _offset.shift_rate(offset, rate_change)
         # A ratio still moving by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift (a tyre
         # mismatch, captured) says the wheels drift: the steady filter follows the rate filter while the stretches
         # refine it.
         moving = jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD
         moving = moving & (offset.since_drift < params.filter_follow_hold_m)
         steady = _offset.restart_hold(steady, computed_once(moving))
-    return cal_state, offset, steady
+    return cal_state, offset, steady, rate_change
 
 
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
@@ -465,7 +468,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         curvature=odo["curvature"], e_c=e_c, compass_ok=compass_ok & (initialized > 0.5), enabled=config.refine_a)
 
     # EP 0619873: left/right distance-per-pulse calibration.
-    cal_state, offset, steady = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"], fd["steady"],
+    cal_state, offset, steady, rate_change = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"], fd["steady"],
                                            initialized)
 
     # US 4,680,715: Kalman mode (its own heading and position).
@@ -474,7 +477,10 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
-        initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman")
+        initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman",
+        rate_change=rate_change, rate_variance=jnp.where(_offset.large_drift(params, offset),
+                                                         offset.beta ** 2 + offset.p11, 0.0),
+        lost_elsewhere=fd.get("lost_restart", False))
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
                "kalman": kalman_heading}[config.mode]
@@ -496,6 +502,13 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         y = state.y + odo["AD"] * jnp.cos(mid)
 
     bound = _offset.bound(params, fd["shown"], initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
+    if config.mode == "kalman":
+        bound = _kalman.bound(params, kalman_state, initialized)
+    elif config.mode in ("odometer", "compass"):
+        # The single-sensor modes' heading is the fused one less their distance from it (triangle inequality): the
+        # wheels after an unknown tyre mismatch, 150 deg off, had the fused heading's reliability (stop 48).
+        single = wheel_heading if config.mode == "odometer" else h_c
+        bound = jnp.minimum(bound + jnp.abs(wrap(single - fd["complementary"])), _offset.UNINITIALIZED_BOUND)
     # Before the heading is initialized the bound is UNINITIALIZED_BOUND (180 deg): the reliability is then its
     # smallest, 1 / (1 + 180 / reliability_scale_deg), inside SPEC §8's (0, 1] (exactly 0 before stop 44).
     reliability = _hf.reliability(params, bound)

@@ -149,6 +149,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("kf_ramp_psd", 2.4e-13, "rad2/s3", "US 4,680,715: PSD of the white noise driving the ramp pitch eps (random ramp)"),
     ParamSpec("kf_drift_psd", 2.3e-11, "rad2/s", "random-walk PSD (per second) of the drift angle dth2, the wheel course error"),
     ParamSpec("kf_drift_per_m", 1.0e-8, "rad2/m", "random-walk intensity of the drift angle dth2 per metre driven (wheel slip)"),
+    ParamSpec("kf_rate_sigma0", 0.0, "rad/m", "initial sigma of the wheel course's drift per metre beta (a tyre mismatch the parameters do not know, / track); 0: beta starts known, released while the rate filter finds a significant drift"),
+    ParamSpec("kf_rate_psd", 0.0, "rad2/m3", "random walk of beta per metre (tyre wear, load); 0: none"),
     ParamSpec("kf_turn_sigma", 1.2e-4, "1", "relative sigma of the wheel course change (track/velocity-term error): adds (this x alpha)^2 to dth2"),
     ParamSpec("kf_white_sigma_deg", 0.35, "deg", "US 4,680,715: sigma of the white course error dth3"),
     ParamSpec("kf_compass_sigma_deg", 4.3, "deg", "white compass course noise sigma (plus kf_compass_ec_weight x E_C)"),
@@ -247,7 +249,7 @@ POSITIVE_KEYS = (
 NON_NEGATIVE_KEYS = (
     "a", "refine_M_deg", "refine_turn_min_deg", "refine_speed_min", "compass_error_floor_deg",
     "wheel_error_K", "heading_error_K", "map_threshold_deg", "cal_prior_weight", "cal_significance",
-    "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma",
+    "kf_gm_sigma_deg", "kf_ramp_sigma0_deg_per_min", "kf_ramp_psd", "kf_drift_psd", "kf_drift_per_m", "kf_rate_sigma0", "kf_rate_psd", "kf_turn_sigma",
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
     "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",

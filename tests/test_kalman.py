@@ -17,18 +17,23 @@ def _np_matrices(p, dt, s, course):
     e1 = math.exp(-dt / p["kf_gm_tau_s"])
     sn, cs = math.sin(course), math.cos(course)
     ef = math.exp(-dt / p["kf_fix_gm_tau_s"])
-    phi = np.eye(7)
+    phi = np.eye(8)
     phi[0, 0] = e1
     phi[1, 2] = dt
+    phi[1, 7] = s  # the wheels' drift per metre beta
     phi[3, 1] = -s * sn  # only the drift angle dth2 is an error of the dead-reckoned course
     phi[4, 1] = s * cs
     phi[5, 5] = phi[6, 6] = ef  # colored fix errors bN, bE
-    q = np.zeros((7, 7))
+    q = np.zeros((8, 8))
     q[0, 0] = d(p["kf_gm_sigma_deg"]) ** 2 * (1 - e1 ** 2)
     qr, qd = p["kf_ramp_psd"], p["kf_drift_psd"]
     q[1, 1] = qr * dt ** 3 / 3 + qd * dt + p["kf_drift_per_m"] * abs(s)  # + (kf_turn_sigma alpha)^2, alpha = 0
     q[1, 2] = q[2, 1] = qr * dt ** 2 / 2
     q[2, 2] = qr * dt
+    q_rate = p["kf_rate_psd"] * abs(s)  # beta a random walk per metre, integrated into dth2 over the sample
+    q[1, 1] += q_rate * s * s / 3
+    q[1, 7] = q[7, 1] = q_rate * s / 2
+    q[7, 7] = q_rate
     along = (p["kf_speed_sigma"] * s) ** 2
     cross = (d(p["kf_white_sigma_deg"]) * s) ** 2
     u = np.array([cs, sn])
@@ -41,7 +46,7 @@ def _np_matrices(p, dt, s, course):
 def _np_kf(p, samples, p0):
     """A plain textbook Kalman filter (standard-form covariance update, np.linalg.inv)."""
     d = math.radians
-    x = np.zeros(7)
+    x = np.zeros(8)
     P = p0.copy()
     north = east = 0.0
     out = []
@@ -57,22 +62,22 @@ def _np_kf(p, samples, p0):
         north += s * math.cos(course)
         east += s * math.sin(course)
         # compass course
-        H = np.array([[1.0, 1.0, 0, 0, 0, 0, 0]])
+        H = np.array([[1.0, 1.0, 0, 0, 0, 0, 0, 0]])
         R = (d(p["kf_compass_sigma_deg"]) ** 2 + d(p["kf_white_sigma_deg"]) ** 2
              + (p["kf_compass_ec_weight"] * e_c) ** 2) * max(1.0, p["kf_compass_corr_m"] / abs(s))
         z = np.array([h_w - h_c])
         Kg = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
         x = x + Kg @ (z - H @ x)
-        P = (np.eye(7) - Kg @ H) @ P
+        P = (np.eye(8) - Kg @ H) @ P
         if fix is not None:
-            H = np.zeros((2, 7))
+            H = np.zeros((2, 8))
             H[0, 3] = H[1, 4] = 1.0   # fix - position computer = -(dN, dE) + (bN, bE) + white
             H[0, 5] = H[1, 6] = -1.0
             R = p["kf_fix_sigma_m"] ** 2 * np.eye(2)
             z = np.array([north - fix[1], east - fix[0]])
             Kg = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
             x = x + Kg @ (z - H @ x)
-            P = (np.eye(7) - Kg @ H) @ P
+            P = (np.eye(8) - Kg @ H) @ P
         north -= x[3]
         east -= x[4]
         x[3:5] = 0.0
@@ -82,7 +87,8 @@ def _np_kf(p, samples, p0):
 
 def test_equals_numpy_kalman_on_linear_case():
     """Straight drive at constant course: the error-state model is linear; JAX == NumPy."""
-    p = jm.make_params(kf_gate_sigma=0.0, kf_ramp_psd=1e-9, kf_drift_psd=1e-5, kf_fix_sigma_m=4.0, kf_fix_gm_sigma_m=1.0)
+    p = jm.make_params(kf_gate_sigma=0.0, kf_ramp_psd=1e-9, kf_drift_psd=1e-5, kf_fix_sigma_m=4.0, kf_fix_gm_sigma_m=1.0,
+                       kf_rate_sigma0=1e-4, kf_rate_psd=1e-12)
     pd = jm.params_to_dict(p)
     rng = np.random.default_rng(3)
     n, dt, v = 600, 0.1, 12.0
@@ -186,7 +192,7 @@ def _rmse(out, truth, skip_s=60.0):
 
 def test_covariance_symmetric_positive_definite_over_one_hour():
     inputs, _ = _sim("mixed", 3600.0, 21, 4.0)
-    p = jm.make_params()
+    p = jm.make_params(kf_rate_sigma0=1e-4)  # beta uncertain from the start (by default it is known until released)
 
     @jax.jit
     def covs(p, inputs):
@@ -364,8 +370,9 @@ def test_white_fix_model_when_the_colored_sigma_is_zero():
         return jax.lax.scan(body, init_state(p), inputs)[1]
 
     err, cov = (np.asarray(a) for a in states(p, inputs))
-    assert np.all(err[:, K.I_FIX_N:] == 0.0)
-    assert np.all(cov[:, K.I_FIX_N:, :] == 0.0) and np.all(cov[:, :, K.I_FIX_N:] == 0.0)
+    fix = [K.I_FIX_N, K.I_FIX_E]
+    assert np.all(err[:, fix] == 0.0)
+    assert np.all(cov[:, fix, :] == 0.0) and np.all(cov[:, :, fix] == 0.0)
     assert np.all(np.linalg.eigvalsh(cov[:, :K.I_FIX_N, :K.I_FIX_N]) > 0.0)
 
 
