@@ -71,8 +71,9 @@ Steps of claim 1, per sample:
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
 
 5. Re-acquisition (``_reacquire``): a course measurement that disagrees with the course by more than
-   filter_reacquire_large_deg for filter_reacquire_lost_m, or that is beyond the gate for filter_reacquire_m,
-   restarts dth1, dth2, eps from it.
+   filter_reacquire_large_deg for filter_reacquire_lost_m, that is beyond the gate for filter_reacquire_m, or
+   that far off when the complementary filter restarts as lost, restarts dth1, dth2, eps from it; the next fix
+   then repositions (``_reposition``), as does one after FIX_REACQUIRE_COUNT fixes in a row beyond the gate.
 
 Without fixes the filter runs on the compass alone.  All noise parameters are kf_* entries of
 Params; everything is jnp with masks, so it is jit/vmap/grad-safe.  Their defaults were fitted by
@@ -87,7 +88,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .angles import safe_div, wrap
-from .offset_filter import UNINITIALIZED_BOUND, lost_distance, samples_per_measurement
+from .offset_filter import lost, lost_distance, samples_per_measurement, supported_bound
 from .packed import computed_once
 from .params import deg
 
@@ -318,11 +319,11 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
     """
     keep = jnp.exp(-jnp.abs(s) / params.filter_check_m)
     disagreement = jnp.where(used, keep * ks.disagreement + (1.0 - keep) * nu, ks.disagreement)
-    far = used & (jnp.abs(disagreement) > deg(params.filter_reacquire_large_deg))
+    far = used & lost(params, disagreement)
     lost_m = jnp.where(far, ks.lost_m + lost_distance(jnp.abs(s), dt), jnp.where(used, 0.0, ks.lost_m))
     rejected = used & (d2 > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
     rejected_m = jnp.where(rejected, ks.rejected_m + jnp.abs(s), jnp.where(used, 0.0, ks.rejected_m))
-    far_now = jnp.abs(wrap(course_error - err[I_DRIFT])) > deg(params.filter_reacquire_large_deg)
+    far_now = lost(params, wrap(course_error - err[I_DRIFT]))
     # computed once: selected over err and the 8 x 8 cov, the flag's chain (through the update's d2) was otherwise
     # recomputed per element, and the Kalman step ran 2.3x slower (bench_modes; 1.3x with it).
     lost_long = (lost_m > params.filter_reacquire_lost_m) | (rejected_m > params.filter_reacquire_m)
@@ -363,10 +364,7 @@ def bound(params, ks, initialized):
     """Heading bound (rad) of the Kalman mode's course C_th = H_W - dth2^: the sigma of dth2, at least the running
     disagreement with the compass while it is beyond filter_reacquire_large_deg (as offset_filter.bound);
     offset_filter.UNINITIALIZED_BOUND before the start."""
-    sigma = jnp.sqrt(jnp.maximum(ks.cov[I_DRIFT, I_DRIFT], 0.0))
-    far = jnp.abs(ks.disagreement) > deg(params.filter_reacquire_large_deg)
-    sigma = jnp.where(far, jnp.maximum(sigma, jnp.abs(ks.disagreement)), sigma)
-    return jnp.where(initialized > 0.5, sigma, UNINITIALIZED_BOUND)
+    return supported_bound(params, ks.cov[I_DRIFT, I_DRIFT], ks.disagreement, initialized)
 
 
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
@@ -438,10 +436,10 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     course_meas = jnp.where(map_used, map_heading, compass_heading)
     nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
     r_c = jnp.where(map_used, map_noise(params, s, dt), compass_noise(params, e_c, s, dt))
-    use_c = active & (compass_ok | map_used) & (jnp.abs(s) > 0.0)
+    valid_c = active & (compass_ok | map_used)
+    use_c = valid_c & (jnp.abs(s) > 0.0)
     err_u, cov_u, d2_c = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
                                 pattern=H_COMPASS != 0.0)
-    valid_c = active & (compass_ok | map_used)
     err_u, cov_u, restarted, watch = _reacquire(params, ks, err_u, cov_u, p0, nu_c, d2_c, use_c, valid_c, s, dt,
                                                 wrap(wheel_heading - course_meas), lost_elsewhere)
 

@@ -468,8 +468,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         curvature=odo["curvature"], e_c=e_c, compass_ok=compass_ok & (initialized > 0.5), enabled=config.refine_a)
 
     # EP 0619873: left/right distance-per-pulse calibration.
-    cal_state, offset, steady, rate_change = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"], fd["steady"],
-                                           initialized)
+    cal_state, offset, steady, rate_change = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"],
+                                                        fd["steady"], initialized)
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(

@@ -445,8 +445,15 @@ def bound(params, fs, initialized):
     running disagreement with the compass while the filter is ``lost`` (a heading that the compass contradicts by
     more than filter_reacquire_large_deg is not supported, whatever its variance says); UNINITIALIZED_BOUND before
     the start."""
-    sigma = jnp.sqrt(jnp.maximum(fs.p00, 0.0))
-    sigma = jnp.where(lost(params, fs.disturbance), jnp.maximum(sigma, jnp.abs(fs.disturbance)), sigma)
+    return supported_bound(params, fs.p00, fs.disturbance, initialized)
+
+
+def supported_bound(params, variance, disagreement, initialized):
+    """Heading bound (rad) of a filter: sqrt of its heading ``variance`` (rad^2), at least its running
+    ``disagreement`` with the compass (rad) while that is ``lost``; UNINITIALIZED_BOUND before the start.
+    Shared by this filter (``bound``) and the Kalman mode (kalman.bound)."""
+    sigma = jnp.sqrt(jnp.maximum(variance, 0.0))
+    sigma = jnp.where(lost(params, disagreement), jnp.maximum(sigma, jnp.abs(disagreement)), sigma)
     return jnp.where(initialized > 0.5, sigma, UNINITIALIZED_BOUND)
 
 

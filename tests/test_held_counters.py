@@ -8,8 +8,7 @@ import pytest
 
 import jaxmodel as jm
 from identification import scenarios as sc
-from identification.drive_log import drive_from_columns
-from identification.estimate import run_padded
+from matrix_drives import rmse_after_first_minute, run_drive
 
 
 @pytest.fixture(scope="module")
@@ -27,13 +26,7 @@ def _held(drive, every):
 
 
 def _run(drive, mode):
-    log = drive_from_columns(drive.columns, source=drive.name)
-    return run_padded(jm.make_params(drive.params), log, jm.Config(mode=mode))
-
-
-def _rmse_after_first_minute(out, drive):
-    err = np.degrees(np.angle(np.exp(1j * (np.asarray(out.heading) - drive.truth["heading_rad"]))))
-    return float(np.sqrt(np.mean(err[drive.truth["time_s"] >= 60.0] ** 2)))
+    return run_drive(drive, mode=mode)
 
 
 @pytest.mark.slow
@@ -45,7 +38,7 @@ def test_counters_held_for_five_samples_keep_the_drive(drive, mode):
     clean = _run(drive, mode)
     held_drive = _held(drive, 5)
     held = _run(held_drive, mode)
-    clean_rmse, held_rmse = _rmse_after_first_minute(clean, drive), _rmse_after_first_minute(held, held_drive)
+    clean_rmse, held_rmse = rmse_after_first_minute(clean, drive), rmse_after_first_minute(held, held_drive)
     # The heading stands still between updates (up to 0.4 s of turn), nothing more.
     assert held_rmse <= clean_rmse + 1.0, (mode, clean_rmse, held_rmse)
     # No update is refused as a counter fault, no distance lost, and the speed is the vehicle's, not 5 x.

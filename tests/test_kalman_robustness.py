@@ -11,26 +11,9 @@ import pytest
 
 import jaxmodel as jm
 from identification import scenarios as sc
-from identification.drive_log import drive_from_columns
-from identification.estimate import run_padded
 from jaxmodel import kalman as K
 from jaxmodel.heading_filter import reliability as reliability_of_bound
-
-KALMAN = jm.Config(mode="kalman")
-
-
-def _run(drive, config=KALMAN, overrides=None):
-    log = drive_from_columns(drive.columns, source=drive.name)
-    return run_padded(jm.make_params({**drive.params, **(overrides or {})}), log, config)
-
-
-def _err_deg(out, drive):
-    n = drive.truth["heading_rad"].shape[0]
-    return np.degrees(np.angle(np.exp(1j * (np.asarray(out.heading)[:n] - drive.truth["heading_rad"]))))
-
-
-def _rmse_after_first_minute(err_deg, drive):
-    return float(np.sqrt(np.mean(err_deg[drive.truth["time_s"] >= 60.0] ** 2)))
+from matrix_drives import heading_error_deg, rmse_after_first_minute, run_drive
 
 
 def _steps(p, n, compass_heading, e_c, speed=10.0, dt=0.1):
@@ -76,10 +59,10 @@ def test_kalman_mode_follows_a_tyre_mismatch_the_parameters_do_not_know(scenario
     15-minute drives, RMSE after the first minute: before stop 48 the Kalman mode was 101 and 154 deg off with the
     drive's fixes, 153 and 117 without; now 0.65 and 0.93 deg, 1.5 and 2.9 deg."""
     drive = sc.make_drive(scenario, condition, seed)
-    rmse = _rmse_after_first_minute(_err_deg(_run(drive), drive), drive)
+    rmse = rmse_after_first_minute(run_drive(drive, mode="kalman"), drive)
     assert rmse < 1.5, rmse
     no_fixes = dataclasses.replace(drive, columns={k: v for k, v in drive.columns.items() if not k.startswith("fix")})
-    rmse = _rmse_after_first_minute(_err_deg(_run(no_fixes), no_fixes), no_fixes)
+    rmse = rmse_after_first_minute(run_drive(no_fixes, mode="kalman"), no_fixes)
     assert rmse < 4.0, rmse
 
 
@@ -93,13 +76,12 @@ def test_kalman_mode_finds_its_heading_after_a_garage_start_and_says_when_it_can
     Before stop 48 the Kalman mode was off for the whole drive, with the complementary mode's reliability (RMSE
     after the first minute on the 15-minute drive: 112 deg with the fixes, 127 without); now 0.3 deg with them."""
     drive = sc.make_drive("highway", "garage_start", 101, duration_s=450.0)
-    out = _run(drive)
-    err = _err_deg(out, drive)
-    assert _rmse_after_first_minute(err, drive) < 5.0
+    out = run_drive(drive, mode="kalman")
+    err = heading_error_deg(out, drive)
+    assert rmse_after_first_minute(out, drive) < 5.0
     t = drive.truth["time_s"]
     leave = drive.notes["garage_start"]["leave_s"]
-    n = t.shape[0]
-    reliability = np.asarray(out.heading_reliability)[:n]
+    reliability = np.asarray(out.heading_reliability)
     far_out = (t > leave) & (np.abs(err) > 90.0)
     assert far_out.any()
     assert np.all(np.abs(err[t > leave + 5.0]) < 5.0), np.abs(err[t > leave + 5.0]).max()

@@ -8,17 +8,14 @@ import pytest
 
 import jaxmodel as jm
 from identification import scenarios as sc
-from identification.drive_log import drive_from_columns
-from identification.estimate import run_padded
 from jaxmodel.heading_filter import reliability as reliability_of_bound
+from matrix_drives import heading_error_deg, run_drive
 
 
 def _outputs(drive, mode):
-    log = drive_from_columns(drive.columns, source=drive.name)
-    out = run_padded(jm.make_params(drive.params), log, jm.Config(mode=mode))
-    n = drive.truth["heading_rad"].shape[0]
-    err = np.degrees(np.abs(np.angle(np.exp(1j * (np.asarray(out.heading)[:n] - drive.truth["heading_rad"])))))
-    return err, np.asarray(out.heading_reliability)[:n], np.asarray(out.heading_bound)[:n]
+    """|heading error| (deg), reliability, bound (rad) of ``mode`` on ``drive``, per sample."""
+    out = run_drive(drive, mode=mode)
+    return np.abs(heading_error_deg(out, drive)), np.asarray(out.heading_reliability), np.asarray(out.heading_bound)
 
 
 @pytest.mark.slow

@@ -13,34 +13,16 @@ import jaxmodel as jm
 from identification import scenario_eval as ev
 from identification import scenarios as sc
 from identification.drive_log import drive_from_columns
-from identification.estimate import run_padded
 from jaxmodel import compass as jc
 from jaxmodel import plausibility
 from jaxmodel.angles import wrap
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import bench_outside_matrix as outside_matrix  # noqa: E402
-
-
-def _run(drive, overrides=None, **config):
-    """jaxmodel.run on the drive with its vehicle's parameters, then ``overrides``, padded to its length bucket as
-    ``estimate_drive`` is (``estimate.run_padded``): the matrix's 15-minute drives differ by a few samples
-    (8964-8976), and unpadded each length compiled its own program (~5.5 s of the ~6 s a drive took)."""
-    log = drive_from_columns(drive.columns, source=drive.name)
-    return run_padded(jm.make_params({**drive.params, **(overrides or {})}), log, jm.Config(**config))
-
-
-def _err_deg(out, drive):
-    return np.degrees(np.angle(np.exp(1j * (np.asarray(out.heading) - drive.truth["heading_rad"]))))
-
-
-def _after_first_minute(err_deg, drive):
-    """The heading errors after the first minute (the part of a drive the matrix scores)."""
-    return err_deg[drive.truth["time_s"] >= 60.0]
-
-
-def _rmse(err_deg):
-    return float(np.sqrt(np.mean(err_deg ** 2)))
+from matrix_drives import after_first_minute as _after_first_minute  # noqa: E402
+from matrix_drives import heading_error_deg as _err_deg  # noqa: E402
+from matrix_drives import rmse as _rmse  # noqa: E402
+from matrix_drives import run_drive as _run  # noqa: E402
 
 
 def _default_rmse_after_first_minute(drive, overrides=None, **config):
