@@ -123,10 +123,16 @@ def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[s
     valid = np.asarray(cols["compass_valid"]) > 0
     n = valid.size
     if not np.any(valid):
+        fixes = np.asarray(drive.inputs.fix_valid, dtype=np.float64)
         if mode == "compass":
             consequence = "the compass mode has no heading to give (heading_deg is no estimate, reliability least)"
+        elif mode == "kalman" and np.any(fixes > 0.5):
+            consequence = ("the Kalman mode starts the heading from the position fixes once they agree with the "
+                           "wheels' track (heading_deg is no estimate before, reliability least)")
         else:
             consequence = "the heading comes from the wheels alone and its start is unknown"
+            if np.any(fixes > 0.5):
+                consequence += " (the drive has position fixes: --mode kalman starts the heading from them)"
         return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN, inf or no field); "
                 f"{consequence}"]
     cx = np.asarray(drive.inputs.compass_x, dtype=np.float64) - float(params.X0)

@@ -88,6 +88,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .angles import safe_div, wrap
+from .fix_alignment import AlignmentState, init_alignment_state
 from .offset_filter import lost, lost_distance, samples_per_measurement, supported_bound
 from .packed import computed_once
 from .params import deg
@@ -119,6 +120,7 @@ class KalmanState(NamedTuple):
     rejected_m: jnp.ndarray    # metres driven with every course measurement beyond the soft gate
     fix_rejected: jnp.ndarray  # fixes in a row beyond the soft gate
     reposition: jnp.ndarray    # 1.0: the next fix repositions (after a course restart or fixes rejected in a row)
+    alignment: AlignmentState  # the fixes against the wheels' track before the heading is started (fix_alignment)
 
 
 def initial_covariance(params):
@@ -140,7 +142,7 @@ def init_kalman_state(params):
     z = jnp.zeros((), jnp.float64)
     return KalmanState(x=z, y=z, err=jnp.zeros((N_STATES,), jnp.float64), cov=initial_covariance(params),
                        speed=z, active=z, fixes=z, disagreement=z, lost_m=z, rejected_m=z,
-                       fix_rejected=z, reposition=z)
+                       fix_rejected=z, reposition=z, alignment=init_alignment_state())
 
 
 def transition(params, dt, s, course, alpha=0.0):
@@ -474,5 +476,6 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
         fixes=ks.fixes + jnp.where(fix_ok, 1.0, 0.0),
         **{k: jnp.where(active, v, 0.0) for k, v in watch.items()},
         fix_rejected=jnp.where(active, fix_rejected, 0.0), reposition=jnp.where(active & reposition, 1.0, 0.0),
+        alignment=ks.alignment,
     )
     return new, heading, east, north

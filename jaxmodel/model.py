@@ -24,6 +24,7 @@ from . import compass as _compass
 from . import compass_shift as _shift
 from . import dequantize as _dequant
 from . import f_delta as _fdelta
+from . import fix_alignment as _align
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
@@ -114,7 +115,7 @@ class State(NamedTuple):
     """Filter state (all float64 scalars except ``delta_history``, shape (3,))."""
 
     started: jnp.ndarray          # 1.0 once the first sample set the counter references
-    initialized: jnp.ndarray      # 1.0 once a valid compass sample started the wheel heading
+    initialized: jnp.ndarray      # 1.0 once a valid compass sample (Kalman mode: or the fixes) started the wheel heading
     last_time: jnp.ndarray        # s
     last_left: jnp.ndarray        # counts
     last_right: jnp.ndarray       # counts
@@ -179,7 +180,7 @@ class Outputs(NamedTuple):
     map_used: jnp.ndarray             # 1.0 if the map heading replaced the compass
     dpp_ratio: jnp.ndarray            # dpp_right / dpp_left
     distance: jnp.ndarray             # m
-    initialized: jnp.ndarray          # 1.0 once a valid compass sample started the heading (before: meaningless)
+    initialized: jnp.ndarray          # 1.0 once a valid compass sample (Kalman mode: or the fixes) started the heading
 
 
 def init_state(params) -> State:
@@ -428,10 +429,19 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         h_c_raw = wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics))
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
-    # FIG. 8B: wheel heading; the first valid compass sample starts it (odometer mode too).
+    # FIG. 8B: wheel heading; the first valid compass sample starts it (odometer mode too), in the Kalman mode also
+    # the fixes' alignment with the wheels' track when no compass has (SPEC §8, jaxmodel/fix_alignment.py).
     initializing = compass_ok & (state.initialized < 0.5)
-    initialized = jnp.where(initializing, 1.0, state.initialized)
     wheel_heading = jnp.where(initializing, h_c_raw, wrap(state.wheel_heading + alpha))
+    alignment, aligned = state.kalman.alignment, False
+    if config.mode == "kalman":
+        alignment, aligned, rotation, rotation_sigma = _align.update(
+            params, alignment, dt=odo["dt"], distance=odo["AD"], course=wrap(state.wheel_heading + 0.5 * alpha),
+            fix_east=sample.fix_east_m, fix_north=sample.fix_north_m, fix_valid=sample.fix_valid,
+            waiting=(state.initialized < 0.5) & ~initializing)
+        wheel_heading = jnp.where(aligned, wrap(wheel_heading + rotation), wheel_heading)
+        initializing = initializing | aligned
+    initialized = jnp.where(initializing, 1.0, state.initialized)
 
     # FIG. 8D: wheel error bound.
     e_w = _hf.wheel_error_bound(params, state.e_w, alpha, d_t)
@@ -481,6 +491,16 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         rate_change=rate_change, rate_variance=jnp.where(_offset.large_drift(params, offset),
                                                          offset.beta ** 2 + offset.p11, 0.0),
         lost_elsewhere=fd.get("lost_restart", False))
+    if config.mode == "kalman":
+        # A heading started by the fixes starts the position computer at the fix that started it.
+        kalman_x = jnp.where(aligned, sample.fix_east_m, kalman_x)
+        kalman_y = jnp.where(aligned, sample.fix_north_m, kalman_y)
+        # ... and its course with the rotation's variance (at least its own start's).
+        cov = kalman_state.cov
+        drift = cov[_kalman.I_DRIFT, _kalman.I_DRIFT]
+        cov = cov.at[_kalman.I_DRIFT, _kalman.I_DRIFT].set(jnp.where(aligned, jnp.maximum(drift, rotation_sigma ** 2),
+                                                                     drift))
+        kalman_state = kalman_state._replace(x=kalman_x, y=kalman_y, alignment=alignment, cov=cov)
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
                "kalman": kalman_heading}[config.mode]

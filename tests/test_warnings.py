@@ -53,6 +53,17 @@ def test_no_usable_compass_in_the_compass_mode_says_there_is_no_heading(base, tm
     assert not any("wheels alone" in w for w in warnings), warnings
 
 
+@pytest.mark.parametrize("mode", ["kalman", "complementary"])
+def test_no_usable_compass_with_fixes_says_the_kalman_mode_starts_from_them(tmp_path, capsys, mode):
+    """A drive with position fixes and no compass: the Kalman mode starts its heading from the fixes (stop 49,
+    jaxmodel/fix_alignment.py) and says so; the default mode, which takes no fixes, points to it."""
+    cols, truth = simulate("urban", 120.0, seed=5, anomalies=False, fixes_sigma=4.0)
+    cols = dict(cols, compass_x=np.full_like(cols["compass_x"], np.nan))
+    warnings, _ = _warnings(cols, dict(truth["params"]), tmp_path, capsys, mode=mode)
+    expected = "starts the heading from the position fixes" if mode == "kalman" else "--mode kalman starts the heading"
+    assert any("no usable compass" in w and expected in w for w in warnings), warnings
+
+
 def test_time_in_milliseconds(base, tmp_path, capsys):
     """Before stop 44 a log stamped in milliseconds ran without a word, every speed 1000 x too small."""
     cols = dict(base[0], time_s=np.asarray(base[0]["time_s"]) * 1000.0)
