@@ -2,10 +2,13 @@
 
 import math
 
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
 from jax.test_util import check_grads
 
 import jaxmodel as jm
@@ -113,3 +116,38 @@ def test_kalman_mode_with_fixes_and_no_compass_starts_from_the_fixes(scenario):
                                        drive.params), mode="kalman")
     assert not (np.asarray(blind.initialized) > 0.5).any()
     assert np.allclose(np.asarray(blind.heading_reliability), least)
+
+
+_kalman_run = jax.jit(lambda p, i: jm.run(p, i, jm.Config(mode="kalman")))
+N = 64
+_FIX = st.one_of(st.floats(-2000.0, 2000.0, allow_nan=False),
+                 st.sampled_from([math.nan, math.inf, -math.inf, 9.9e6, -9.9e6, 1e7, 1e300, -0.0, 1e-300]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(hnp.arrays(np.float64, N, elements=_FIX), hnp.arrays(np.float64, N, elements=_FIX),
+       hnp.arrays(np.float64, N, elements=st.sampled_from([0.0, 1.0, 1.0, math.nan, 2.0, -1.0])),
+       hnp.arrays(np.float64, N, elements=st.integers(-3, 60).map(float)), st.booleans())
+def test_no_fix_makes_a_nan_heading_without_a_compass(east, north, valid, steps, on_a_line):
+    """No compass at all, the Kalman mode, moving wheels, and fixes that are anything (NaN, inf, 9.9e6 m, scattered
+    or on a line along the track): every output finite, the heading wrapped, and started only by a valid fix."""
+    t = 0.1 * np.arange(N)
+    left = np.cumsum(steps)
+    right = np.cumsum(np.roll(steps, 3))
+    if on_a_line:  # fixes that follow a straight track, then the drawn values on every 4th sample
+        line = 0.02 * np.cumsum(0.5 * (steps + np.roll(steps, 3)))
+        east, north = np.where(np.arange(N) % 4 == 0, east, 0.6 * line), np.where(np.arange(N) % 4 == 0, north,
+                                                                                   0.8 * line)
+    nan = np.full(N, math.nan)
+    inputs = jm.make_inputs(t, left, right, nan, nan, fix_east_m=east, fix_north_m=north, fix_valid=valid)
+    out = _kalman_run(jm.make_params(), inputs)
+    for name in ("heading", "wheel_heading", "x", "y", "speed", "heading_reliability", "heading_bound"):
+        value = np.asarray(getattr(out, name))
+        assert np.all(np.isfinite(value)), (name, value)
+    h = np.asarray(out.heading)
+    assert np.all((h > -math.pi) & (h <= math.pi))
+    started = np.asarray(out.initialized) > 0.5
+    usable = (valid > 0.5) & (np.abs(east) < 1e7) & (np.abs(north) < 1e7)
+    if started.any():  # the heading is started on a sample with a usable fix, after at least ALIGN_MIN_FIXES of them
+        first = int(np.argmax(started))
+        assert usable[first] and np.count_nonzero(usable[:first + 1]) >= FA.ALIGN_MIN_FIXES
