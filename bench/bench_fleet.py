@@ -39,7 +39,6 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-import jaxmodel as jm  # noqa: E402
 from identification.drive_log import write_drive  # noqa: E402
 from identification.simulate import simulate  # noqa: E402
 

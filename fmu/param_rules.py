@@ -114,13 +114,11 @@ def _boundary(refused, rejected: float, accepted: float) -> tuple[float, bool]:
     r, a = rejected, accepted
     while cands:  # binary search over the round numbers
         mid = cands[len(cands) // 2]
-        up = accepted > rejected
         if refused(mid):  # the bound lies on the accepted side of mid
             r = mid
         else:
             a = mid
         cands = [c for c in cands if (min(r, a) < c < max(r, a))]
-        del up
     toward_a = math.inf if accepted > rejected else -math.inf
     if math.nextafter(r, toward_a) == a:
         pass

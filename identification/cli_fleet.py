@@ -8,7 +8,6 @@ which some vehicle (identify) or drive (evaluate) ended ``error`` returns exit c
 
 from __future__ import annotations
 
-import argparse
 
 EXIT_SOME_FAILED = 3
 MANIFEST_HELP = ("CSV or Parquet table with columns vehicle_id, path, role (train or validate); relative paths "

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_RUN_DIR_ENV
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -46,7 +47,7 @@ def built_fmus() -> dict[str, Path]:
     Without that folder (this module imported outside the suite) each process builds its own."""
     import fcntl
 
-    shared = os.environ.get("ODOCOMPASS_TEST_RUN_DIR", "")
+    shared = os.environ.get(SHARED_RUN_DIR_ENV, "")
     if not os.path.isdir(shared):
         d = Path(tempfile.mkdtemp(prefix="odocompass_test_fmu_"))
         atexit.register(shutil.rmtree, d, True)
