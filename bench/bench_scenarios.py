@@ -39,6 +39,8 @@ def table(rows, title):
     print(f"\nbar met on {met} of {len(with_compass)} drives with a compass; "
           f"median ratio {np.median([r['ratio'] for r in with_compass]):.2f}; "
           f"median rank corr {np.nanmedian([r['bound_error_rank_corr'] for r in rows]):.2f}")
+    print("median rank corr of heading_bound with the error, per mode: "
+          + ", ".join(f"{m} {np.nanmedian([r['rank_corr'][m] for r in rows]):.2f}" for m in MODES))
     return met, len(with_compass)
 
 

@@ -94,14 +94,15 @@ def _spearman(a, b):
 
 
 def evaluate(drives, overrides: Mapping[str, Any] | None = None, modes: Iterable[str] = tuple(MODE_CONFIGS)):
-    """One dict per drive: rmse[mode] (deg), ratio, bound_error_rank_corr, glitch_rmse[mode], final dpp_ratio."""
+    """One dict per drive: rmse[mode] (deg), ratio, bound_error_rank_corr (the default mode's), rank_corr[mode],
+    glitch_rmse[mode], final dpp_ratio."""
     drives = list(drives)
     modes = tuple(modes)
     params = stack_params([d.params for d in drives], overrides)
     with_fix, no_fix, mask, truth, time = stacked_inputs(drives)
     keep = (mask > 0.5) & (time - time[:, :1] >= SKIP_S)
     rows = [dict(name=d.name, scenario=d.scenario, condition=d.condition, seed=d.seed, has_compass=d.has_compass,
-                 rmse={}, glitch_rmse={}) for d in drives]
+                 rmse={}, glitch_rmse={}, rank_corr={}) for d in drives]
     for mode in modes:
         out = run_config(params, with_fix if mode == "kalman_fixes" else no_fix, MODE_CONFIGS[mode])
         heading = np.asarray(out.heading)
@@ -109,6 +110,7 @@ def evaluate(drives, overrides: Mapping[str, Any] | None = None, modes: Iterable
         for b, (row, d) in enumerate(zip(rows, drives)):
             k = keep[b]
             row["rmse"][mode] = float(np.degrees(np.sqrt(np.mean(err[b, k] ** 2))))
+            row["rank_corr"][mode] = _spearman(np.asarray(out.heading_bound)[b, k], np.abs(err[b, k]))
             if d.glitch_time_s is not None:
                 g = k & (time[b] >= d.glitch_time_s)
                 row["glitch_rmse"][mode] = float(np.degrees(np.sqrt(np.mean(err[b, g] ** 2))))
