@@ -62,6 +62,10 @@ class AlignmentFields(NamedTuple):
     sum_cross: jnp.ndarray
     sum_pp: jnp.ndarray
     sum_ff: jnp.ndarray
+    frozen_drift: jnp.ndarray  # while re-aligning: the Kalman's dth2^ when it lost the fixes, run on by its beta (rad)
+    frozen_rate: jnp.ndarray   # ... and that beta^ (rad/m)
+    by_fixes: jnp.ndarray    # 1.0 once the fixes started the heading (no compass had)
+    realigning: jnp.ndarray  # 1.0 while the sums run again on the Kalman course as it was, after it lost the fixes
 
 
 AlignmentState = packed_state(AlignmentFields, "AlignmentState",
@@ -120,7 +124,8 @@ def update(params, al, *, dt, distance, course, fix_east, fix_north, fix_valid, 
     elapsed = a.elapsed + jnp.where(waiting & (a.started > 0.5) & jnp.isfinite(dt), jnp.clip(dt, 0.0, 60.0), 0.0)
     grown = AlignmentFields(a.started, pe, pn, a.f0_east, a.f0_north, a.n + 1.0, elapsed, a.sum_pe + pe, a.sum_pn + pn,
                             a.sum_fe + fe, a.sum_fn + fn, a.sum_dot + fe * pe + fn * pn,
-                            a.sum_cross + fe * pn - fn * pe, a.sum_pp + pe * pe + pn * pn, a.sum_ff + fe * fe + fn * fn)
+                            a.sum_cross + fe * pn - fn * pe, a.sum_pp + pe * pe + pn * pn, a.sum_ff + fe * fe + fn * fn,
+                            *_carried(a))
     sigma_fix = fix_sigma(params)
     theta, sigma, rms = rotation(grown, params.kf_fix_sigma_m, params.kf_fix_gm_sigma_m, params.kf_fix_gm_tau_s)
     inconsistent = (grown.n >= ALIGN_MIN_FIXES) & (rms > ALIGN_RESTART_FACTOR * sigma_fix)
@@ -129,10 +134,36 @@ def update(params, al, *, dt, distance, course, fix_east, fix_north, fix_valid, 
     one = jnp.ones_like(pe)
     # The first fix, or one after an inconsistent stretch: the sums start again with it (p = 0, f - f0 = 0).
     first = AlignmentFields(one, z, z, jnp.where(fix_ok, fix_east, 0.0), jnp.where(fix_ok, fix_north, 0.0), one,
-                            z, z, z, z, z, z, z, z, z)
+                            z, z, z, z, z, z, z, z, z, *_carried(a))
     restart = computed_once(fix_ok & ((a.started < 0.5) | inconsistent))
     take = computed_once(fix_ok)
     moved_only = a._replace(p_east=pe, p_north=pn, elapsed=elapsed)
     new = jnp.where(restart, AlignmentState.pack(first).vector,
                     jnp.where(take, AlignmentState.pack(grown).vector, AlignmentState.pack(moved_only).vector))
     return AlignmentState(new), aligned, theta, sigma
+
+
+def _carried(a):
+    """The fields the sums do not touch (from frozen_drift on)."""
+    return a.frozen_drift, a.frozen_rate, a.by_fixes, a.realigning
+
+
+def again(al, drift, rate):
+    """The sums emptied to run again (``realigning``) on the Kalman course as it was when it lost the fixes: its
+    dth2^ ``drift`` (rad) run on by its beta^ ``rate`` (rad/m), frozen (kalman.align_after)."""
+    z = jnp.zeros_like(al.vector[..., 0])
+    fields = AlignmentFields(*([z] * (len(AlignmentFields._fields) - 4)), z + drift, z + rate, z + 1.0, z + 1.0)
+    return AlignmentState.pack(fields)
+
+
+def run_frozen(al, distance):
+    """The frozen dth2^ moved on by its beta^ over the sample's signed travel (m), while re-aligning."""
+    a = al.fields()
+    moved = jnp.where(a.realigning > 0.5, a.frozen_rate * distance, 0.0)
+    return AlignmentState(al.vector.at[..., AlignmentFields._fields.index("frozen_drift")].add(moved))
+
+
+def done(al, realigned):
+    """``al`` with the heading started by the fixes (``by_fixes``) and no re-alignment running where ``realigned``
+    (this sample's fix started or re-aligned the course)."""
+    return AlignmentState(jnp.where(realigned, al.vector.at[..., -2].set(1.0).at[..., -1].set(0.0), al.vector))

@@ -24,7 +24,6 @@ from . import compass as _compass
 from . import compass_shift as _shift
 from . import dequantize as _dequant
 from . import f_delta as _fdelta
-from . import fix_alignment as _align
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
 from . import kalman as _kalman
@@ -433,14 +432,15 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     # the fixes' alignment with the wheels' track when no compass has (SPEC §8, jaxmodel/fix_alignment.py).
     initializing = compass_ok & (state.initialized < 0.5)
     wheel_heading = jnp.where(initializing, h_c_raw, wrap(state.wheel_heading + alpha))
-    alignment, aligned = state.kalman.alignment, False
+    kalman_before = state.kalman
     if config.mode == "kalman":
-        alignment, aligned, rotation, rotation_sigma = _align.update(
-            params, alignment, dt=odo["dt"], distance=odo["AD"], course=wrap(state.wheel_heading + 0.5 * alpha),
+        alignment, started, realigned, rotation, rotation_sigma = _kalman.align_before(
+            params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=state.wheel_heading,
             fix_east=sample.fix_east_m, fix_north=sample.fix_north_m, fix_valid=sample.fix_valid,
-            waiting=(state.initialized < 0.5) & ~initializing)
-        wheel_heading = jnp.where(aligned, wrap(wheel_heading + rotation), wheel_heading)
-        initializing = initializing | aligned
+            uninitialized=(state.initialized < 0.5) & ~initializing)
+        kalman_before = state.kalman._replace(alignment=alignment)
+        wheel_heading = jnp.where(started, wrap(wheel_heading + rotation), wheel_heading)
+        initializing = initializing | started
     initialized = jnp.where(initializing, 1.0, state.initialized)
 
     # FIG. 8D: wheel error bound.
@@ -483,7 +483,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(
-        params, state.kalman, dt=odo["dt"], dt_counts=odo["dt_counts"], held=odo["held"], distance=odo["AD"],
+        params, kalman_before, dt=odo["dt"], dt_counts=odo["dt_counts"], held=odo["held"], distance=odo["AD"],
         alpha=alpha, wheel_heading=wheel_heading,
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
@@ -492,15 +492,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                                                          offset.beta ** 2 + offset.p11, 0.0),
         lost_elsewhere=fd.get("lost_restart", False))
     if config.mode == "kalman":
-        # A heading started by the fixes starts the position computer at the fix that started it.
-        kalman_x = jnp.where(aligned, sample.fix_east_m, kalman_x)
-        kalman_y = jnp.where(aligned, sample.fix_north_m, kalman_y)
-        # ... and its course with the rotation's variance (at least its own start's).
-        cov = kalman_state.cov
-        drift = cov[_kalman.I_DRIFT, _kalman.I_DRIFT]
-        cov = cov.at[_kalman.I_DRIFT, _kalman.I_DRIFT].set(jnp.where(aligned, jnp.maximum(drift, rotation_sigma ** 2),
-                                                                     drift))
-        kalman_state = kalman_state._replace(x=kalman_x, y=kalman_y, alignment=alignment, cov=cov)
+        kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.align_after(
+            params, kalman_before, kalman_state, kalman_heading, started, realigned, rotation, rotation_sigma,
+            sample.fix_east_m, sample.fix_north_m, odo["track"])
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
                "kalman": kalman_heading}[config.mode]
