@@ -493,7 +493,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         lost_elsewhere=fd.get("lost_restart", False))
     if config.mode == "kalman":
         kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.align_after(
-            params, kalman_before, kalman_state, kalman_heading, started, realigned, rotation, rotation_sigma,
+            params, kalman_state, kalman_heading, started, realigned, rotation, rotation_sigma,
             sample.fix_east_m, sample.fix_north_m, odo["track"])
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
