@@ -15,10 +15,10 @@ Procrustes) is the wheel heading's missing offset:
     theta = atan2(sum(f_E p_N - f_N p_E), sum(f_E p_E + f_N p_N))        (p, f centred)
 
 with residual sum |f - R p - t|^2 = S_ff + S_pp - 2 sqrt(S^2 + C^2) (S, C the two sums above) and standard deviation
-sigma_theta = max(sigma_fix, residual RMS) / sqrt(S_pp), S_pp the track's spread (m^2): a straight 200 m with 20
-fixes of 2.5 m gives 0.9 deg, and turns only help.  The heading starts at H_W + theta once sigma_theta is within
-ALIGN_SIGMA_DEG (within the Kalman filter's own start, kf_heading_sigma0_deg); the position computer starts at that
-fix.  A residual RMS beyond ALIGN_RESTART_FACTOR fix sigmas (a fix outlier, a wheel course drifting with a tyre
+sigma_theta^2 = (max(sigma_white, residual RMS)^2 + sigma_coloured^2 n / n_independent) / S_pp, S_pp the track's
+spread (m^2; ``rotation``): turns only help.  The heading starts at H_W + theta once sigma_theta is within
+ALIGN_SIGMA_DEG; the Kalman course starts with that variance and the position computer at that fix (kalman.align_after,
+which also re-aligns a course that lost its fixes).  A residual RMS beyond ALIGN_RESTART_FACTOR fix sigmas (a fix outlier, a wheel course drifting with a tyre
 mismatch) starts the sums again from the current fix.  Only the track's shape enters, so the distance scale need
 not be known well (a 1 % scale error adds 1 % of the spread to the residual, not to theta).
 """
@@ -93,14 +93,16 @@ def rotation(a: AlignmentFields, sigma_white, sigma_coloured, tau_coloured):
     s_ff = a.sum_ff - (a.sum_fe ** 2 + a.sum_fn ** 2) / n
     s = a.sum_dot - (a.sum_pe * a.sum_fe + a.sum_pn * a.sum_fn) / n
     c = a.sum_cross - (a.sum_fe * a.sum_pn - a.sum_fn * a.sum_pe) / n
-    theta = jnp.arctan2(c, s)
+    # Double where: at s = c = 0 (one fix, a vehicle standing) arctan2's gradient is 0/0.
+    degenerate = (s == 0.0) & (c == 0.0)
+    theta = jnp.where(degenerate, 0.0, jnp.arctan2(c, jnp.where(degenerate, 1.0, s)))
     residual = jnp.maximum(s_ff + s_pp - 2.0 * safe_sqrt(s * s + c * c), 0.0)
     rms = safe_sqrt(residual / jnp.maximum(2.0 * n - 3.0, 1.0))
     determined = (a.n >= 2.0) & (s_pp > 0.0)
     spread = jnp.where(determined, s_pp, 1.0)
-    independent = jnp.clip(a.elapsed / (2.0 * tau_coloured), 1.0, n)
+    independent = jnp.clip(a.elapsed / jnp.maximum(2.0 * tau_coloured, 1e-9), 1.0, n)
     variance = (jnp.maximum(sigma_white, rms) ** 2 + sigma_coloured ** 2 * n / independent) / spread
-    sigma = jnp.where(determined, jnp.sqrt(variance), jnp.inf)
+    sigma = jnp.where(determined, safe_sqrt(variance), jnp.inf)
     return theta, sigma, rms
 
 

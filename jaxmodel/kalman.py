@@ -371,14 +371,16 @@ def bound(params, ks, initialized):
     return jnp.where(ks.alignment.realigning > 0.5, UNINITIALIZED_BOUND, supported)
 
 
-def align_before(params, ks, *, dt, distance, alpha, wheel_heading, fix_east, fix_north, fix_valid, uninitialized):
+def align_before(params, ks, *, dt, distance, alpha, wheel_heading, fix_east, fix_north, fix_valid, uninitialized,
+                 compass_ok=False):
     """The fixes' alignment (jaxmodel/fix_alignment.py) before the sample's Kalman step.
 
     Until the heading is started (``uninitialized``: no compass has) the wheels' track runs in the unstarted wheel
     heading's frame (``wheel_heading``: H_W before the sample, alpha its change); while re-aligning, on the Kalman
     course C_th = H_W - dth2^ (with beta^'s part of the sample).  Returns (AlignmentState, started: the heading is
-    started at H_W + theta, realigned: C_th turns by theta, theta (rad), its sigma (rad))."""
-    al = ks.alignment
+    started at H_W + theta, realigned: C_th turns by theta, theta (rad), its sigma (rad)).  A valid compass sample
+    (``compass_ok``) ends the fixes' hold on the course: no re-alignment from then on (the compass re-acquires)."""
+    al = AlignmentState(jnp.where(compass_ok, ks.alignment.vector.at[..., -2:].set(0.0), ks.alignment.vector))
     realigning = al.realigning > 0.5
     frozen_course = wheel_heading + 0.5 * alpha - al.frozen_drift - 0.5 * al.frozen_rate * distance
     course = wrap(jnp.where(realigning, frozen_course, wheel_heading + 0.5 * alpha))

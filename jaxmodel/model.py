@@ -437,7 +437,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         alignment, started, realigned, rotation, rotation_sigma = _kalman.align_before(
             params, state.kalman, dt=odo["dt"], distance=odo["AD"], alpha=alpha, wheel_heading=state.wheel_heading,
             fix_east=sample.fix_east_m, fix_north=sample.fix_north_m, fix_valid=sample.fix_valid,
-            uninitialized=(state.initialized < 0.5) & ~initializing)
+            uninitialized=(state.initialized < 0.5) & ~initializing, compass_ok=compass_ok)
         kalman_before = state.kalman._replace(alignment=alignment)
         wheel_heading = jnp.where(started, wrap(wheel_heading + rotation), wheel_heading)
         initializing = initializing | started

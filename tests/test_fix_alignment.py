@@ -62,12 +62,13 @@ def test_the_rotation_of_the_wheels_track_onto_the_fixes_is_the_missing_heading(
 
 
 def test_fewer_than_align_min_fixes_start_nothing():
-    """Four perfect fixes over 30 m already fix the rotation, but ALIGN_MIN_FIXES is five."""
+    """Four perfect fixes 30 m apart already fix the rotation within ALIGN_SIGMA_DEG, but ALIGN_MIN_FIXES is five:
+    the fifth starts the heading."""
     p = jm.make_params()
-    course, distance = _track(40, turn_at=1000)
-    aligned, theta, _ = _align(p, course, distance, 0.5, 0.0, np.random.default_rng(0))
-    assert not aligned.any()
-    assert abs(theta[30] - 0.5) < 1e-9  # four fixes (samples 0-30): determined, not yet believed
+    course, distance = _track(50, speed=30.0, turn_at=1000)
+    aligned, theta, sigma = _align(p, course, distance, 0.5, 0.0, np.random.default_rng(0))
+    assert abs(theta[30] - 0.5) < 1e-9 and sigma[30] <= math.radians(FA.ALIGN_SIGMA_DEG)  # four fixes (0-30)
+    assert not aligned[:40].any() and aligned[40]
 
 
 def test_fixes_that_do_not_follow_the_wheels_start_nothing():
@@ -93,6 +94,29 @@ def test_rotation_gradients_match_finite_differences():
         return jnp.stack([theta, sigma, rms])
 
     check_grads(f, (jnp.asarray([30.0, 200.0, 25.0, 190.0, 4000.0, 900.0]),), order=1, modes=("fwd", "rev"))
+
+
+def test_gradients_through_a_start_from_fixes_are_finite():
+    """No compass, 20 s standing with fixes (the rotation's sums all zero: arctan2(0, 0)), then driving a curve until
+    the fixes start the heading: the gradient of the headings with respect to dpp_left and T_F is finite."""
+    n = 600
+    steps = np.where(np.arange(n) < 200, 0.0, 40.0)
+    left, right = np.cumsum(steps), np.cumsum(steps * 0.995)
+    course = np.cumsum(0.02 * (0.005 * steps) / 1.5)
+    d = 0.5 * 0.02 * (steps + 0.995 * steps)
+    east, north = np.cumsum(d * np.sin(course + 1.0)), np.cumsum(d * np.cos(course + 1.0))
+    nan = np.full(n, math.nan)
+    inputs = jm.make_inputs(0.1 * np.arange(n), left, right, nan, nan, fix_east_m=east, fix_north_m=north,
+                            fix_valid=(np.arange(n) % 10 == 0).astype(float))
+    base = jm.make_params()
+
+    def loss(x):
+        out = jm.run(base._replace(dpp_left=x[0], T_F=x[1]), inputs, jm.Config(mode="kalman"))
+        return jnp.sum(jnp.sin(out.heading)), out.initialized
+
+    (value, initialized), grad = jax.value_and_grad(loss, has_aux=True)(jnp.asarray([0.02, float(base.T_F)]))
+    assert np.asarray(initialized).max() > 0.5
+    assert np.all(np.isfinite(np.asarray(grad))), grad
 
 
 @pytest.mark.slow
