@@ -43,7 +43,7 @@ ALIGN_MIN_FIXES = 5.0
 ALIGN_RESTART_FACTOR = 4.0
 """Residual RMS (per axis, in fix sigmas) beyond which the sums start again from the current fix."""
 MAX_FIX_M = 1.0e7
-"""Fixes farther than this from the origin (m) are not plausible (as kalman.MAX_FIX_M)."""
+"""Fixes farther than this from the origin (m) are not plausible (kalman.MAX_FIX_M is this)."""
 
 
 class AlignmentFields(NamedTuple):
@@ -70,6 +70,8 @@ class AlignmentFields(NamedTuple):
 
 AlignmentState = packed_state(AlignmentFields, "AlignmentState",
                               "Sums of the wheels' track against the fixes before the heading is started.")
+_FROZEN_DRIFT, _BY_FIXES, _REALIGNING = (AlignmentFields._fields.index(f)
+                                         for f in ("frozen_drift", "by_fixes", "realigning"))
 
 
 def init_alignment_state():
@@ -162,10 +164,11 @@ def run_frozen(al, distance):
     """The frozen dth2^ moved on by its beta^ over the sample's signed travel (m), while re-aligning."""
     a = al.fields()
     moved = jnp.where(a.realigning > 0.5, a.frozen_rate * distance, 0.0)
-    return AlignmentState(al.vector.at[..., AlignmentFields._fields.index("frozen_drift")].add(moved))
+    return AlignmentState(al.vector.at[..., _FROZEN_DRIFT].add(moved))
 
 
-def done(al, realigned):
-    """``al`` with the heading started by the fixes (``by_fixes``) and no re-alignment running where ``realigned``
-    (this sample's fix started or re-aligned the course)."""
-    return AlignmentState(jnp.where(realigned, al.vector.at[..., -2].set(1.0).at[..., -1].set(0.0), al.vector))
+def done(al, where, by_fixes=1.0):
+    """``al`` with no re-alignment running and ``by_fixes`` set as given where ``where``: 1 where this sample's fix
+    started or re-aligned the course, 0 where a valid compass ended the fixes' hold on it."""
+    ended = al.vector.at[..., _BY_FIXES].set(by_fixes).at[..., _REALIGNING].set(0.0)
+    return AlignmentState(jnp.where(where, ended, al.vector))

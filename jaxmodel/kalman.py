@@ -97,8 +97,9 @@ from .params import deg
 N_STATES = 8
 MAX_DT_S = 60.0
 """Longest time step the error model propagates over (a logging gap counts as this)."""
-MAX_FIX_M = 1.0e7
-"""Fixes (and a position computer) farther than this from the origin are not plausible (m)."""
+MAX_FIX_M = _align.MAX_FIX_M
+"""Fixes (and a position computer) farther than this from the origin are not plausible (m; one value with the fixes'
+alignment)."""
 MAX_GATE_SCALE = 1.0e12
 """Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
 I_GM, I_DRIFT, I_RAMP, I_N, I_E, I_FIX_N, I_FIX_E, I_RATE = range(N_STATES)
@@ -301,6 +302,9 @@ def map_noise(params, distance, dt=None):
 
 
 COURSE_STATES = (I_GM, I_DRIFT, I_RAMP)
+_COURSE = np.isin(np.arange(N_STATES), COURSE_STATES)
+_COURSE_BLOCK = _COURSE[:, None] | _COURSE[None, :]
+"""The course states and their rows and columns of the covariance (a course restart resets them)."""
 
 
 def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_error, lost_elsewhere):
@@ -331,12 +335,9 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
     # recomputed per element, and the Kalman step ran 2.3x slower (bench_modes; 1.3x with it).
     lost_long = (lost_m > params.filter_reacquire_lost_m) | (rejected_m > params.filter_reacquire_m)
     restart = computed_once((used & lost_long) | (valid & lost_elsewhere & far_now))
-    course = np.zeros(N_STATES, dtype=bool)
-    course[list(COURSE_STATES)] = True
     start = jnp.zeros(N_STATES).at[I_DRIFT].set(course_error)
-    block = course[:, None] | course[None, :]
-    err = jnp.where(restart & course, start, err)
-    cov = jnp.where(restart & block, p0, cov)
+    err = jnp.where(restart & _COURSE, start, err)
+    cov = jnp.where(restart & _COURSE_BLOCK, p0, cov)
     zero = jnp.zeros_like(disagreement)
     watch = dict(disagreement=disagreement, lost_m=lost_m, rejected_m=rejected_m)
     return err, cov, restart, {k: jnp.where(restart, zero, v) for k, v in watch.items()}
@@ -380,7 +381,7 @@ def align_before(params, ks, *, dt, distance, alpha, wheel_heading, fix_east, fi
     course C_th = H_W - dth2^ (with beta^'s part of the sample).  Returns (AlignmentState, started: the heading is
     started at H_W + theta, realigned: C_th turns by theta, theta (rad), its sigma (rad)).  A valid compass sample
     (``compass_ok``) ends the fixes' hold on the course: no re-alignment from then on (the compass re-acquires)."""
-    al = AlignmentState(jnp.where(compass_ok, ks.alignment.vector.at[..., -2:].set(0.0), ks.alignment.vector))
+    al = _align.done(ks.alignment, compass_ok, by_fixes=0.0)
     realigning = al.realigning > 0.5
     frozen_course = wheel_heading + 0.5 * alpha - al.frozen_drift - 0.5 * al.frozen_rate * distance
     course = wrap(jnp.where(realigning, frozen_course, wheel_heading + 0.5 * alpha))
@@ -412,9 +413,7 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
     known: released there, it took the fixes' coloured errors for drift (no-compass drives 0.39 -> 0.51 deg urban,
     1.3 -> 3.9 deg parking).  Returns (state, heading, east, north)."""
     hit = started | realigned
-    course = np.zeros(N_STATES, dtype=bool)
-    course[list(COURSE_STATES)] = True
-    cov = jnp.where(realigned & (course[:, None] | course[None, :]), initial_covariance(params), ks.cov)
+    cov = jnp.where(realigned & _COURSE_BLOCK, initial_covariance(params), ks.cov)
     # The frozen course turned by theta: dth2^ = frozen dth2 - theta, beta^ the frozen one (the filter's own ran off).
     frozen = ks.alignment.fields()
     err = ks.err.at[I_DRIFT].set(jnp.where(realigned, frozen.frozen_drift - theta, ks.err[I_DRIFT]))
