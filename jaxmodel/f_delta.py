@@ -62,6 +62,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
+    # The start's anchor is young until START_ANCHOR_M of absolute headings: one straight road on a grade can be it.
+    young = distance_filtered < _offset.START_ANCHOR_M
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
     predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
@@ -71,21 +73,33 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                           absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
-                                          dt=odo["dt"])
+                                          dt=odo["dt"], young=young)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
-    steady, _ = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0, absolute_ok & ~initializing, drifting,
-                               tilt, d_lost, drift_significant, dt=odo["dt"])
+    steady, _, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,
+                                                    absolute_ok & ~initializing, drifting, tilt, d_lost,
+                                                    drift_significant, dt=odo["dt"], young=young,
+                                                    with_lost_restart=True)
+    # Both filters watch one compass: once the steady one restarts as lost (the heading itself was wrong: a garage),
+    # so does the rate filter, unless the wheels' drift explains its own disagreement: a significant rate, or a ratio
+    # the calibration has moved (a tyre mismatch, whose rate it must keep).  Left alone, a rate filter 58 deg off
+    # stayed under the 60 deg of its own lost restart for 250 s, learned a rate from it and the heading followed
+    # (urban/garage_start/110: 10.4 deg RMSE after the first minute, 5.0 with this; docs/tuning.md, stop 50).
+    calibrated = _cal.corrected(params, state.calibration)
+    rate_follows = computed_once(steady_lost_restart & ~drift_significant & (calibrated < 0.5))
+    offset = _offset.OffsetState(jnp.where(rate_follows, _offset.restarted_like(params, offset, steady).vector,
+                                           offset.vector))
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
     steady, shown = _offset.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
-                                   calibrated=_cal.corrected(params, state.calibration))
+                                   calibrated=calibrated)
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count
-    # A lost filter's restart: F-DELTA moved beyond filter_reacquire_large_deg in one sample.
-    lost_restart = jnp.abs(wrap(offset.delta - predicted_delta)) > deg(params.filter_reacquire_large_deg)
+    # A lost filter's restart: F-DELTA moved beyond filter_reacquire_large_deg in one sample, or with the steady one.
+    lost_restart = (jnp.abs(wrap(offset.delta - predicted_delta)) > deg(params.filter_reacquire_large_deg)
+                    ) | rate_follows
     if learns_shift(config):
         # It says the compass the heading started from was disturbed (a garage): so was the B_E learned from it,
         # which the shift learner reads.

@@ -215,6 +215,15 @@ def start(params):
     return init_offset_state(params)
 
 
+def restarted_like(params, fs, other):
+    """``fs`` restarted as ``other`` just was (FIG. 8B from the compass): the prior covariance, ``other``'s F-DELTA and
+    its running disagreement, ``fs``'s own since_drift."""
+    o = other.fields()
+    f = fs.fields()
+    return OffsetState.pack(start(params).fields()._replace(delta=o.delta, level=o.level, wander=o.wander,
+                                                            since_drift=f.since_drift))
+
+
 def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad); ``turn_sigma`` (rad) the
     uncertainty of a turn the odometer guard substituted for a wheel that stopped counting (added to the offset's).
@@ -256,8 +265,21 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
         since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
 
+START_ANCHOR_M = 1000.0
+"""Metres of absolute headings (compass or map) after the first one during which the start's anchor is young: it
+may rest on one straight road.  On a grade a level-mounted compass reads g sin(psi_m) off, and the tilt state cannot
+tell g from F-DELTA until the heading changes (independent simulator, urban_hilly seed 20: started heading west on a
+9 % grade, 12.6 deg off; after the first turn the compass was within 3 deg, steadily rejected, for 800 m)."""
+START_REJECT_M = 600.0
+"""A young filter restarts from a compass it rejected this many metres in a row while that compass disagreed
+steadily (START_WANDER_DEG) and no significant drift of the wheels explained it."""
+START_WANDER_DEG = 3.0
+"""RMS wander of the disagreement over LOST_STEADY_M below which it counts as steady for START_REJECT_M (an anomaly
+or a long disturbance wanders by more; a start tilted on a grade wanders by the compass noise, 0.6-1 deg)."""
+
+
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None, drift_significant=None,
-           dt=None):
+           dt=None, young=False, with_lost_restart=False):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + tilt g + white noise (h = [1, 0, 1, 0, tilt]); ``tilt`` = sin(psi_m) from
@@ -268,8 +290,10 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     ``dt`` (s, the sample's time step; default: not counted in time): the white noise is counted at most once per
-    COMPASS_CORR_S seconds too.
-    Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one).
+    COMPASS_CORR_S seconds too.  ``young`` (bool): the start's anchor is younger than START_ANCHOR_M; a compass that
+    disagrees steadily for START_REJECT_M then restarts the filter (unless a significant drift explains it).
+    Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one), and with
+    ``with_lost_restart`` a third item: whether the filter restarted as lost (bool).
     """
     f = fs.fields()
     d_lost = d_t if d_lost is None else d_lost
@@ -340,11 +364,18 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # 16 deg off for the last 4 minutes.
     reacquire = jnp.where(is_lost | standing_lost, lost_m > lost_after, rejected_m > jnp.where(
         drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
+    # A young start (``young``, START_ANCHOR_M) that a steady compass contradicts for START_REJECT_M was anchored by a
+    # compass with an error of its own (a grade); a hardened filter would take kilometres to let it back in.
+    young_restart = young & ~drift_significant & (jnp.sqrt(wander) < deg(START_WANDER_DEG)) & (
+        rejected_m > START_REJECT_M)
+    reacquire = reacquire | young_restart
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
     out = OffsetState.pack(OffsetFields(*[jnp.where(ok, jnp.where(reacquire, r_, n_), o_)
                                           for r_, n_, o_ in zip(restart, new, f)]))
     weight = jnp.where(ok, weight, 0.0)
+    if with_lost_restart:
+        return out, weight, reacquire & ok & (is_lost | standing_lost)
     return out, weight
 
 

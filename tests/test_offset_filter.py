@@ -244,3 +244,66 @@ def test_an_early_restart_needs_a_significant_drift(significant, restarted):
                             jnp.asarray(True), jnp.asarray(True), 0.0, drift_significant=jnp.asarray(significant))
     assert float(weight) < 0.5  # the sample itself is rejected
     assert np.degrees(float(new.delta)) == pytest.approx(12.0 if restarted else 0.0, abs=0.5)
+
+
+def _rejected_for(params, metres, disagreement_deg, wander_deg):
+    """A filter whose compass has disagreed by ``disagreement_deg`` for ``metres`` in a row (rejected), wandering
+    by ``wander_deg`` RMS about that level."""
+    f = of.init_offset_state(params).fields()
+    return of.OffsetState.pack(f._replace(
+        rejected_m=jnp.asarray(metres), disturbance=jnp.asarray(deg(disagreement_deg)),
+        level=jnp.asarray(deg(disagreement_deg)), wander=jnp.asarray(deg(wander_deg) ** 2),
+        p00=jnp.asarray(deg(1.0) ** 2)))
+
+
+@pytest.mark.parametrize("young, wander_deg, significant, metres, restarted", [
+    (True, 0.8, False, of.START_REJECT_M + 5.0, True),    # a start tilted on a grade: restarted
+    (False, 0.8, False, of.START_REJECT_M + 5.0, False),  # an anchored filter: a hard-iron shift, not its start
+    (True, 8.0, False, of.START_REJECT_M + 5.0, False),   # a wandering field: a long disturbance
+    (True, 0.8, True, of.START_REJECT_M + 5.0, False),    # a significant drift explains it (a tyre mismatch)
+    (True, 0.8, False, of.START_REJECT_M - 50.0, False),  # not yet START_REJECT_M
+])
+def test_a_young_start_restarts_from_a_compass_that_steadily_contradicts_it(young, wander_deg, significant, metres,
+                                                                            restarted):
+    """Independent simulator, urban_hilly seed 20: the drive started heading magnetic west on a 9 % grade, 12.6 deg
+    off; after its first turn the compass was within 3 deg and disagreed steadily (0.7-1 deg RMS) by 10 deg, rejected
+    for 800 m, and the filter took 10 minutes to come back.  Within START_ANCHOR_M of the start, a steady
+    disagreement rejected for START_REJECT_M restarts the filter from the compass, as the first sample did."""
+    params = jm.make_params()
+    fs = _rejected_for(params, metres, 10.0, wander_deg)
+    new, weight = of.update(params, fs, jnp.asarray(deg(10.0)), jnp.asarray(deg(3.0)), 10.0, 1.0,
+                            jnp.asarray(True), jnp.asarray(significant), 0.0, drift_significant=jnp.asarray(significant),
+                            young=jnp.asarray(young))
+    assert np.degrees(float(new.delta)) == pytest.approx(10.0 if restarted else 0.0, abs=0.7)
+
+
+def test_update_says_when_it_restarted_as_lost():
+    """``with_lost_restart``: True for the restart of a filter lost beyond filter_reacquire_large_deg (a garage), not
+    for a young restart or an accepted sample."""
+    params = jm.make_params()
+    big = float(params.filter_reacquire_large_deg) + 20.0
+    lost = _rejected_for(params, 500.0, big, 0.5)
+    lost = of.OffsetState.pack(lost.fields()._replace(lost_m=jnp.asarray(1e3)))
+    args = (jnp.asarray(deg(3.0)), 10.0, 1.0, jnp.asarray(True), jnp.asarray(False), 0.0)
+    new, _, flag = of.update(params, lost, jnp.asarray(deg(big)), *args, with_lost_restart=True)
+    assert bool(flag) and np.degrees(float(new.delta)) == pytest.approx(big, abs=0.5)
+    young = _rejected_for(params, of.START_REJECT_M + 5.0, 10.0, 0.8)
+    new, _, flag = of.update(params, young, jnp.asarray(deg(10.0)), *args, young=jnp.asarray(True),
+                             with_lost_restart=True)
+    assert not bool(flag) and np.degrees(float(new.delta)) == pytest.approx(10.0, abs=0.5)
+    clean = of.init_offset_state(params)
+    _, weight, flag = of.update(params, clean, jnp.asarray(0.0), *args, with_lost_restart=True)
+    assert not bool(flag) and float(weight) > 0.5
+
+
+def test_restarted_like_takes_the_other_filters_restart_and_keeps_its_own_hold():
+    params = jm.make_params()
+    other = _rejected_for(params, 0.0, 70.0, 0.5)
+    other = of.OffsetState.pack(other.fields()._replace(delta=jnp.asarray(deg(65.0))))
+    mine = of.OffsetState.pack(of.init_offset_state(params).fields()._replace(
+        delta=jnp.asarray(deg(3.0)), beta=jnp.asarray(1e-4), since_drift=jnp.asarray(123.0)))
+    f = of.restarted_like(params, mine, other).fields()
+    start = of.start(params).fields()
+    assert np.degrees(float(f.delta)) == pytest.approx(65.0)
+    assert float(f.level) == pytest.approx(deg(70.0)) and float(f.since_drift) == 123.0
+    assert float(f.beta) == 0.0 and float(f.p00) == float(start.p00) and float(f.p11) == float(start.p11)
