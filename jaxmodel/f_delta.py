@@ -62,8 +62,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
-    # The start's anchor is young until START_ANCHOR_M of absolute headings: one straight road on a grade can be it.
-    young = distance_filtered < _offset.START_ANCHOR_M
+    # The start's anchor is young for its first km of absolute headings: one straight road on a grade can be it.
+    young = _offset.young(params, distance_filtered)
     offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
     predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))

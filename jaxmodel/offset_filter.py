@@ -265,17 +265,25 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
         since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
 
-START_ANCHOR_M = 1000.0
-"""Metres of absolute headings (compass or map) after the first one during which the start's anchor is young: it
-may rest on one straight road.  On a grade a level-mounted compass reads g sin(psi_m) off, and the tilt state cannot
-tell g from F-DELTA until the heading changes (independent simulator, urban_hilly seed 20: started heading west on a
-9 % grade, 12.6 deg off; after the first turn the compass was within 3 deg, steadily rejected, for 800 m)."""
-START_REJECT_M = 600.0
-"""A young filter restarts from a compass it rejected this many metres in a row while that compass disagreed
-steadily (START_WANDER_DEG) and no significant drift of the wheels explained it."""
+START_ANCHOR_FRACTION = 1.0
+"""The start's anchor is young for this fraction of filter_reacquire_m (1000 m) of absolute headings (compass or map)
+after the first one: it may rest on one straight road.  On a grade a level-mounted compass reads g sin(psi_m) off,
+and the tilt state cannot tell g from F-DELTA until the heading changes (independent simulator, urban_hilly seed 20:
+started heading west on a 9 % grade, 12.6 deg off; after the first turn the compass was within 3 deg, steadily
+rejected, for 800 m).  A fraction of filter_reacquire_m, so that switching re-acquisition off switches this off."""
+START_REJECT_FRACTION = 0.6
+"""A young filter restarts from a compass it rejected this fraction of filter_reacquire_m (600 m) in a row while that
+compass disagreed steadily (START_WANDER_DEG) and no significant drift of the wheels explained it: as a drifting
+filter does after filter_reacquire_m, sooner, since its anchor is weaker."""
 START_WANDER_DEG = 3.0
-"""RMS wander of the disagreement over LOST_STEADY_M below which it counts as steady for START_REJECT_M (an anomaly
+"""RMS wander of the disagreement over LOST_STEADY_M below which it counts as steady for a young restart (an anomaly
 or a long disturbance wanders by more; a start tilted on a grade wanders by the compass noise, 0.6-1 deg)."""
+
+
+def young(params, distance_filtered):
+    """Whether the start's anchor is young: fewer than START_ANCHOR_FRACTION x filter_reacquire_m metres of absolute
+    headings since the first one (``distance_filtered``, m)."""
+    return distance_filtered < START_ANCHOR_FRACTION * params.filter_reacquire_m
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None, drift_significant=None,
@@ -290,8 +298,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     ``dt`` (s, the sample's time step; default: not counted in time): the white noise is counted at most once per
-    COMPASS_CORR_S seconds too.  ``young`` (bool): the start's anchor is younger than START_ANCHOR_M; a compass that
-    disagrees steadily for START_REJECT_M then restarts the filter (unless a significant drift explains it).
+    COMPASS_CORR_S seconds too.  ``young`` (bool, ``young``): the start's anchor is young; a compass that disagrees
+    steadily for START_REJECT_FRACTION x filter_reacquire_m then restarts the filter (unless a significant drift
+    explains it).
     Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one), and with
     ``with_lost_restart`` a third item: whether the filter restarted as lost (bool).
     """
@@ -364,10 +373,10 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # 16 deg off for the last 4 minutes.
     reacquire = jnp.where(is_lost | standing_lost, lost_m > lost_after, rejected_m > jnp.where(
         drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
-    # A young start (``young``, START_ANCHOR_M) that a steady compass contradicts for START_REJECT_M was anchored by a
-    # compass with an error of its own (a grade); a hardened filter would take kilometres to let it back in.
+    # A young start (``young``) that a steady compass contradicts for long was anchored by a compass with an error of
+    # its own (a grade); a hardened filter would take kilometres to let it back in.
     young_restart = young & ~drift_significant & (jnp.sqrt(wander) < deg(START_WANDER_DEG)) & (
-        rejected_m > START_REJECT_M)
+        rejected_m > START_REJECT_FRACTION * params.filter_reacquire_m)
     reacquire = reacquire | young_restart
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)

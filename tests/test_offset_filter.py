@@ -246,6 +246,9 @@ def test_an_early_restart_needs_a_significant_drift(significant, restarted):
     assert np.degrees(float(new.delta)) == pytest.approx(12.0 if restarted else 0.0, abs=0.5)
 
 
+_YOUNG_REJECT_M = of.START_REJECT_FRACTION * 1000.0  # filter_reacquire_m's default
+
+
 def _rejected_for(params, metres, disagreement_deg, wander_deg):
     """A filter whose compass has disagreed by ``disagreement_deg`` for ``metres`` in a row (rejected), wandering
     by ``wander_deg`` RMS about that level."""
@@ -257,19 +260,21 @@ def _rejected_for(params, metres, disagreement_deg, wander_deg):
 
 
 @pytest.mark.parametrize("young, wander_deg, significant, metres, restarted", [
-    (True, 0.8, False, of.START_REJECT_M + 5.0, True),    # a start tilted on a grade: restarted
-    (False, 0.8, False, of.START_REJECT_M + 5.0, False),  # an anchored filter: a hard-iron shift, not its start
-    (True, 8.0, False, of.START_REJECT_M + 5.0, False),   # a wandering field: a long disturbance
-    (True, 0.8, True, of.START_REJECT_M + 5.0, False),    # a significant drift explains it (a tyre mismatch)
-    (True, 0.8, False, of.START_REJECT_M - 50.0, False),  # not yet START_REJECT_M
+    (True, 0.8, False, _YOUNG_REJECT_M + 5.0, True),    # a start tilted on a grade: restarted
+    (False, 0.8, False, _YOUNG_REJECT_M + 5.0, False),  # an anchored filter: a hard-iron shift, not its start
+    (True, 8.0, False, _YOUNG_REJECT_M + 5.0, False),   # a wandering field: a long disturbance
+    (True, 0.8, True, _YOUNG_REJECT_M + 5.0, False),    # a significant drift explains it (a tyre mismatch)
+    (True, 0.8, False, _YOUNG_REJECT_M - 50.0, False),  # not yet that far
 ])
 def test_a_young_start_restarts_from_a_compass_that_steadily_contradicts_it(young, wander_deg, significant, metres,
                                                                             restarted):
     """Independent simulator, urban_hilly seed 20: the drive started heading magnetic west on a 9 % grade, 12.6 deg
     off; after its first turn the compass was within 3 deg and disagreed steadily (0.7-1 deg RMS) by 10 deg, rejected
-    for 800 m, and the filter took 10 minutes to come back.  Within START_ANCHOR_M of the start, a steady
-    disagreement rejected for START_REJECT_M restarts the filter from the compass, as the first sample did."""
+    for 800 m, and the filter took 10 minutes to come back.  Within the first km of the start (``young``), a steady
+    disagreement rejected for 600 m restarts the filter from the compass, as the first sample did."""
     params = jm.make_params()
+    assert float(params.filter_reacquire_m) == 1000.0
+    assert bool(of.young(params, 999.0)) and not bool(of.young(params, 1001.0))
     fs = _rejected_for(params, metres, 10.0, wander_deg)
     new, weight = of.update(params, fs, jnp.asarray(deg(10.0)), jnp.asarray(deg(3.0)), 10.0, 1.0,
                             jnp.asarray(True), jnp.asarray(significant), 0.0, drift_significant=jnp.asarray(significant),
@@ -287,7 +292,7 @@ def test_update_says_when_it_restarted_as_lost():
     args = (jnp.asarray(deg(3.0)), 10.0, 1.0, jnp.asarray(True), jnp.asarray(False), 0.0)
     new, _, flag = of.update(params, lost, jnp.asarray(deg(big)), *args, with_lost_restart=True)
     assert bool(flag) and np.degrees(float(new.delta)) == pytest.approx(big, abs=0.5)
-    young = _rejected_for(params, of.START_REJECT_M + 5.0, 10.0, 0.8)
+    young = _rejected_for(params, _YOUNG_REJECT_M + 5.0, 10.0, 0.8)
     new, _, flag = of.update(params, young, jnp.asarray(deg(10.0)), *args, young=jnp.asarray(True),
                              with_lost_restart=True)
     assert not bool(flag) and np.degrees(float(new.delta)) == pytest.approx(10.0, abs=0.5)
