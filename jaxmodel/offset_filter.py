@@ -81,6 +81,9 @@ Robustness, where the seed is silent (its FIG. 3A shows dip errors and 360-degre
   LOST_STEADY_DEG over LOST_STEADY_M): an anomaly that turns the field as far wanders within metres.  A lost
   filter counts its metres at no less than LOST_MIN_SPEED (``lost_distance``), standing still too when the
   disagreement jumped there and stays steady (the field changed around a car that did not turn).
+* a young start (``young``: its first km) that a steadily disagreeing compass contradicts for 600 m restarts from it
+  (a start on a grade); the steady filter's lost restart restarts the rate filter too (``restarted_like``, in
+  ``f_delta``) unless a drift explains the rate filter's own disagreement (docs/tuning.md, stop 50).
 """
 
 from __future__ import annotations
