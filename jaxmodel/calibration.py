@@ -278,7 +278,7 @@ def corrected(params, cs):
     """How surely the applied ratio k has moved from the parameters' k0, in [0, 1]: a smoothstep t^2 (3 - 2 t) in
     |k / k0 - 1| between the two CORRECTED_RELATIVE (exactly 0 below the first, so drives whose tyres match the file
     are untouched).  A found mismatch leaves the calibrated ratio a residual of 1-3e-5 (tens of µrad/m of wheel drift,
-    docs/tuning.md stop 47) that the heading filter should follow (``offset_filter.follow``)."""
+    docs/tuning.md stop 47) that the heading filter should follow (``follow.follow``)."""
     low, high = CORRECTED_RELATIVE
     relative = jnp.abs(cs.ratio / parameter_ratio(params) - 1.0)
     t = jnp.clip((relative - low) / (high - low), 0.0, 1.0)

@@ -14,6 +14,7 @@ from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
 from . import heading_filter as _hf
+from . import follow as _follow
 from . import offset_filter as _offset
 from .angles import safe_div, wrap
 from .packed import computed_once
@@ -92,7 +93,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     offset = _offset.OffsetState(jnp.where(rate_follows, _offset.restarted_like(params, offset, steady).vector,
                                            offset.vector))
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
-    steady, shown = _offset.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
+    steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
                                    calibrated=calibrated)
     f_delta = shown.delta
 
@@ -113,7 +114,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     if learns_shift(config):
         # The wheels carry EH while the compass is rejected; not while they drift (a tyre mismatch), while the
         # filter is lost (the heading itself may be wrong), in fast turns (roll) or on the map's heading.  Nor during
-        # the follow hold after a drift (``offset_filter.follow``): EH is then the rate filter's, and carries what the
+        # the follow hold after a drift (``follow.follow``): EH is then the rate filter's, and carries what the
         # wheels drifted before the calibration caught it (held-out mixed/mismatch_2.5/110 learned a 2-µT "shift"
         # from it: 1.08 -> 3.28 deg).
         following = steady.since_drift < params.filter_follow_hold_m

@@ -46,7 +46,7 @@ are correlated over kilometres (dip on hills: 3 % of grade puts a level compass 
 600 m; anomalies), and the filter integrates it (clean drives 0.8-2 deg against the rate-free
 seed filter's 0.5-1.1 deg).  So a second, *steady* F-DELTA runs beside it without a rate state
 (``steady_params``: turn noise ``filter_steady_turn_sigma``) and gives the heading; the heading shows
-the rate filter's offset while that filter's rate is significant (``follow``: more than
+the rate filter's offset while that filter's rate is significant (``follow.follow``: more than
 ``filter_rate_significance`` of its sigmas and about ``filter_follow_show_rate``, the wheels are seen to
 drift), and the steady filter takes the rate filter's state only during the follow hold after the
 calibration captured such a drift (docs/tuning.md, "steady F-DELTA" and stop 30).
@@ -114,7 +114,7 @@ class OffsetFields(NamedTuple):
     averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
     ``rejected_m`` metres driven in a row with the compass present and rejected (weight < 1/2);
     ``since_drift`` in the rate filter metres since its rate was last large (``count_since_large_drift``), in
-    the steady filter metres since its follow hold last restarted (``follow``, ``restart_hold``);
+    the steady filter metres since its follow hold last restarted (``follow.follow``, ``restart_hold``);
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
     LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last
     accepted."""
@@ -531,17 +531,17 @@ def large_drift(params, rate_filter):
     filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
     grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
     the window in which recalibrations restart the steady filter's follow hold (``count_since_large_drift``), and,
-    with the calibration off, the hold itself (``follow``)."""
+    with the calibration off, the hold itself (``follow.follow``)."""
     return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
+
+
+NEVER_DRIFTED_M = 1e12
+"""``since_drift`` of a filter that has not seen the wheels drift."""
 
 
 def restart_hold(steady, restart):
     """The steady filter's follow hold restarted (``since_drift`` 0) where ``restart`` (bool, computed once)."""
     return OffsetState(steady.vector * (1.0 - jnp.where(restart, 1.0, 0.0)[..., None] * _SINCE_DRIFT_ONEHOT))
-
-
-NEVER_DRIFTED_M = 1e12
-"""``since_drift`` of a filter that has not seen the wheels drift."""
 
 
 def count_since_large_drift(params, rate_filter, previous, d_t):
@@ -552,63 +552,6 @@ def count_since_large_drift(params, rate_filter, previous, d_t):
     stretches refine every ratio by 1e-4 now and then, and on a hills drive without a tyre mismatch one such step
     held the steady filter to a rate filter drifting 50 µrad/m for 10 km (highway/hills/105 over 600 s: 7.07 deg,
     2.75 deg with this; docs/tuning.md, stop 30)."""
-    since = jnp.where(large_drift(params, rate_filter), 0.0, jnp.minimum(previous.since_drift, NEVER_DRIFTED_M) + d_t)
+    since = jnp.where(large_drift(params, rate_filter), 0.0,
+                      jnp.minimum(previous.since_drift, NEVER_DRIFTED_M) + d_t)
     return _added(rate_filter, _SINCE_DRIFT_ONEHOT, since - rate_filter.since_drift)
-
-
-CALIBRATED_SHOW_FRACTION = 0.1
-"""filter_follow_show_rate is this much smaller once the calibration has moved the ratio (``follow``)."""
-
-
-def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, calibrated=0.0):
-    """The steady F-DELTA and the heading it shows: drawn to the rate filter while the wheels drift.
-
-    The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
-    before the calibration has caught it), but on clean drives the rate it learns from a compass with
-    errors correlated over kilometres (dip on hills, anomalies) is noise that it integrates.  The
-    steady filter has no rate; it gives the heading, and:
-
-    * *shows* the rate filter's offset (and variance) while that filter's rate is significant
-      (``follow_weight``) and larger than about filter_follow_show_rate, without taking it into its own
-      state: a compass swing on a hill taken for a rate leaves the steady filter where it was once the
-      rate is insignificant again;
-    * *takes* the rate filter's state (rate taken out) for filter_follow_hold_m after the drift was
-      confirmed: by the calibration, which restarts the hold when it moves the ratio (a capture of the
-      drift or a recalibration: ``restart_hold``), or, with ``hold_on_drift`` (the calibration off), by a
-      significant rate larger than filter_follow_hold_rate (``large_drift``).  After a drift the
-      calibration takes out most of it within kilometres, and what remains (tens of µrad/m, no longer
-      "significant") the rate filter still follows while the steady one would lag by degrees.
-
-    ``calibrated`` (``calibration.corrected``, in [0, 1]): the calibration has moved the ratio from the parameters'.
-    The show rate is then CALIBRATED_SHOW_FRACTION of filter_follow_show_rate: the calibrated ratio's residual of
-    1-3e-5 drifts the wheels by 10-30 µrad/m, below the show rate, and on a long highway the steady filter lagged it by
-    degrees (independent simulator, the tyres' mismatch hidden from the parameters: docs/tuning.md, stop 47).  Drives
-    whose tyres match the file keep the full show rate, which keeps a hill's fake rate out (highway/hills/105).
-
-    Before stop 30 a significant rate was copied into the steady state too: hills drives of seeds 101-109
-    (36) 1.41 deg against 1.23 deg now (docs/tuning.md, stop 30).  ``since_drift`` of the steady filter counts the
-    metres since the hold last restarted; d_t (m) is this sample's distance.  Returns (steady state,
-    shown: the steady state's OffsetFields with delta, p00 and disturbance blended towards the rate filter's,
-    what the heading and ``bound`` read).
-    """
-    f = rate_filter.fields()
-    z = jnp.zeros_like(f.beta)
-    taken = f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(_N)})
-    w_rate = follow_weight(params, rate_filter)
-    restart = large_drift(params, rate_filter) if hold_on_drift else False
-    since = jnp.where(restart, 0.0, steady.since_drift + d_t)
-    hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
-    w = jnp.where(computed_once(initializing), 1.0, hold)
-    # Field by field, then packed: blends of whole packed vectors cost XLA:CPU a transposed copy each.
-    blended = OffsetFields(*[s_ + w * (t_ - s_) for s_, t_ in zip(steady.fields(), taken)])
-    # F-DELTA is an angle: blend the wrapped difference.
-    s_delta = steady.delta
-    blended = blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since)
-    # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
-    show_rate = params.filter_follow_show_rate * (1.0 - (1.0 - CALIBRATED_SHOW_FRACTION) * calibrated)
-    w_rate = w_rate * jax.nn.sigmoid(FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
-    shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
-                             p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
-                             disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))
-    # ``shown`` stays unpacked: only its delta, p00 and disturbance are read.
-    return OffsetState.pack(blended), shown

@@ -1,10 +1,12 @@
-"""jaxmodel/offset_filter.py: the unrolled five-state algebra against dense matrices, and the tilt state."""
+"""jaxmodel/offset_filter.py and jaxmodel/follow.py: the unrolled five-state algebra against dense matrices, the tilt
+state, the steady filter's follow, the restarts."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxmodel as jm
+from jaxmodel import follow as jf
 from jaxmodel import offset_filter as of
 from jaxmodel.params import deg
 
@@ -146,7 +148,7 @@ def test_follow_shows_a_significant_rate_without_taking_it_into_the_steady_state
     starts."""
     params = jm.make_params()
     rate = _rate_filter(params, beta, beta / 10.0, 10.0)
-    steady, shown = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
+    steady, shown = jf.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
                               hold_on_drift=False)
     assert float(steady.delta) == pytest.approx(0.0, abs=1e-12)
     assert float(steady.since_drift) == pytest.approx(of.NEVER_DRIFTED_M + 1.0)
@@ -164,7 +166,7 @@ def test_follow_shows_a_small_significant_rate_once_the_calibration_has_moved_th
     rate = _rate_filter(params, 2e-5, 2e-6, 10.0)
     shown_deg = {}
     for calibrated in (0.0, 1.0):
-        steady, shown = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
+        steady, shown = jf.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0,
                                   hold_on_drift=False, calibrated=calibrated)
         assert float(steady.delta) == pytest.approx(0.0, abs=1e-12)
         shown_deg[calibrated] = np.degrees(float(shown.delta))
@@ -192,11 +194,11 @@ def test_follow_hold_copies_the_rate_filter_and_a_large_drift_starts_it_without_
     with it on it does not."""
     params = jm.make_params()
     rate = _rate_filter(params, 2e-3, 2e-4, 10.0)
-    held, _ = of.follow(params, _steady(params, 0.0, 100.0), rate, False, 1.0, hold_on_drift=False)
+    held, _ = jf.follow(params, _steady(params, 0.0, 100.0), rate, False, 1.0, hold_on_drift=False)
     assert np.degrees(float(held.delta)) == pytest.approx(10.0, abs=1e-6)
     assert float(held.beta) == 0.0 and float(held.p11) == 0.0
     for hold_on_drift, since in ((True, 0.0), (False, of.NEVER_DRIFTED_M + 1.0)):
-        steady, _ = of.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0, hold_on_drift)
+        steady, _ = jf.follow(params, _steady(params, 0.0, of.NEVER_DRIFTED_M), rate, False, 1.0, hold_on_drift)
         assert float(steady.since_drift) == pytest.approx(since)
         assert np.degrees(float(steady.delta)) == pytest.approx(10.0 if hold_on_drift else 0.0, abs=1e-6)
 
@@ -277,8 +279,8 @@ def test_a_young_start_restarts_from_a_compass_that_steadily_contradicts_it(youn
     assert bool(of.young(params, 999.0)) and not bool(of.young(params, 1001.0))
     fs = _rejected_for(params, metres, 10.0, wander_deg)
     new, weight = of.update(params, fs, jnp.asarray(deg(10.0)), jnp.asarray(deg(3.0)), 10.0, 1.0,
-                            jnp.asarray(True), jnp.asarray(significant), 0.0, drift_significant=jnp.asarray(significant),
-                            young=jnp.asarray(young))
+                            jnp.asarray(True), jnp.asarray(significant), 0.0,
+                            drift_significant=jnp.asarray(significant), young=jnp.asarray(young))
     assert np.degrees(float(new.delta)) == pytest.approx(10.0 if restarted else 0.0, abs=0.7)
 
 
