@@ -1,0 +1,56 @@
+"""The default mode comes back after it was wrong (issue 10, stop 50): drives of the independent simulator
+(bench/independent_sim.py) on which the heading stayed far off a clean compass."""
+
+import csv
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import independent_sim as sim  # noqa: E402
+
+import jaxmodel as jm  # noqa: E402
+from identification.diagnostics import checked_params  # noqa: E402
+from identification.drive_log import read_drive  # noqa: E402
+from identification.estimate import estimate_drive  # noqa: E402
+
+
+def _error_deg(tmp_path, kind, seed, hide_mismatch=False):
+    """(time s, heading error deg) of the default mode on an independent drive; ``hide_mismatch`` gives both wheels
+    the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does)."""
+    path, params_path = sim.make_drive(kind, seed, tmp_path)
+    params, extra = checked_params(params_path)
+    params, _ = jm.for_unidentified_vehicle(params, extra["keys"])
+    if hide_mismatch:
+        mean = 0.5 * (params.dpp_left + params.dpp_right)
+        params = params._replace(dpp_left=mean, dpp_right=mean)
+    cols = estimate_drive(params, read_drive(path), jm.Config())
+    with open(Path(path).with_suffix(".truth.csv"), newline="") as f:
+        rows = list(csv.DictReader(f))
+    t = np.array([float(r["time_s"]) for r in rows])
+    truth = np.array([float(r["heading_unwrapped_deg"]) for r in rows])
+    return t, (np.asarray(cols["heading_deg"]) - truth + 180.0) % 360.0 - 180.0
+
+
+@pytest.mark.slow
+def test_a_start_on_a_grade_is_restarted_after_the_first_turn(tmp_path):
+    """urban_hilly seed 20: started heading magnetic west on a 9 % grade, 12.6 deg off; after the first turn (28 s) the
+    compass was within 3 deg, disagreeing steadily by 10 deg, and the filter took 10 minutes to come back (-7.7 deg at
+    120 s, -5 deg at 300 s).  The young restart (offset_filter.young): within 1.3 deg from 140 to 240 s."""
+    t, err = _error_deg(tmp_path, "urban_hilly", 20)
+    assert abs(err[0]) > 10.0  # the start on the grade
+    assert np.max(np.abs(err[(t > 140.0) & (t < 240.0)])) < 1.5
+
+
+@pytest.mark.slow
+def test_a_steady_filter_locked_out_by_a_slow_hidden_drift_comes_back(tmp_path):
+    """mixed seed 25 with its 0.1 % tyre mismatch hidden (660 µrad/m of wheel drift until the calibration finds it):
+    the rate filter followed the drift and accepted the compass, the steady filter lagged 30 deg and was rejected;
+    once the calibration's first step took the rate under the show rate (240 s), the heading was the steady filter's,
+    32 deg off for 4.6 km (18.4 deg RMSE).  The far restart alone: 7.25 deg; with the steady filter taking the rate
+    filter's offset: 5.67 deg, within 6 deg from 270 s on."""
+    t, err = _error_deg(tmp_path, "mixed", 25, hide_mismatch=True)
+    assert np.max(np.abs(err[t > 270.0])) < 7.0
+    assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 7.0
