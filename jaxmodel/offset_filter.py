@@ -219,13 +219,17 @@ def start(params):
     return init_offset_state(params)
 
 
+def _restarted(params, delta, level, wander, since_drift):
+    """Fields of a filter restarted at F-DELTA ``delta`` (FIG. 8B from the compass): the prior covariance, the running
+    disagreement ``level``/``wander`` and the follow-hold count ``since_drift`` carried over."""
+    return start(params).fields()._replace(delta=delta, level=level, wander=wander, since_drift=since_drift)
+
+
 def restarted_like(params, fs, other):
-    """``fs`` restarted as ``other`` just was (FIG. 8B from the compass): the prior covariance, ``other``'s F-DELTA and
-    its running disagreement, ``fs``'s own since_drift."""
+    """``fs`` restarted as ``other`` just was: ``other``'s F-DELTA and running disagreement, ``fs``'s own
+    since_drift (``_restarted``)."""
     o = other.fields()
-    f = fs.fields()
-    return OffsetState.pack(start(params).fields()._replace(delta=o.delta, level=o.level, wander=o.wander,
-                                                            since_drift=f.since_drift))
+    return OffsetState.pack(_restarted(params, o.delta, o.level, o.wander, fs.fields().since_drift))
 
 
 def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
@@ -346,7 +350,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     jump = computed_once(ok & (jnp.abs(wrap(nu - f.level)) > deg(params.filter_reacquire_large_deg)))
     level = jnp.where(jump, nu, level)
     wander = jnp.where(jump, JUMP_WANDER * deg(LOST_STEADY_DEG) ** 2, wander)
-    steadily = jnp.sqrt(wander) < deg(LOST_STEADY_DEG)
+    wander_rms = jnp.sqrt(wander)
+    steadily = wander_rms < deg(LOST_STEADY_DEG)
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_measurement / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
     r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
@@ -372,8 +377,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
-    restart = start(params).fields()._replace(delta=wrap(delta_meas), level=level, wander=wander,
-                                              since_drift=f.since_drift)
+    restart = _restarted(params, wrap(delta_meas), level, wander, f.since_drift)
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, params.filter_reacquire_lost_m)
     # A lost filter counts its metres from when it became lost, not from when the compass was first rejected: a long
     # disturbance that turns the field step by step past filter_reacquire_large_deg is not a wrong heading
@@ -385,13 +389,13 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
         drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # A young start (``young``) that a steady compass contradicts for long was anchored by a compass with an error of
     # its own (a grade); a hardened filter would take kilometres to let it back in.
-    young_restart = young & ~drift_significant & (jnp.sqrt(wander) < deg(START_WANDER_DEG)) & (
+    very_steadily = wander_rms < deg(START_WANDER_DEG)
+    young_restart = young & ~drift_significant & very_steadily & (
         rejected_m > START_REJECT_FRACTION * params.filter_reacquire_m)
     # A compass that disagrees steadily by more than any shifted hard iron can turn it, rejected for
     # filter_reacquire_m, says the filter is locked out, whatever its rate (a hidden 0.1 % tyre mismatch whose drift
     # the rate filter caught only in part: 33 deg off a clean compass for 4.6 km, independent mixed seed 25).
-    far_restart = (jnp.abs(level) > deg(FAR_RESTART_DEG)) & (jnp.sqrt(wander) < deg(START_WANDER_DEG)) & (
-        rejected_m > params.filter_reacquire_m)
+    far_restart = (jnp.abs(level) > deg(FAR_RESTART_DEG)) & very_steadily & (rejected_m > params.filter_reacquire_m)
     reacquire = reacquire | young_restart | far_restart
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
