@@ -83,23 +83,9 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                                     absolute_ok & ~initializing, drifting, tilt, d_lost,
                                                     drift_significant, dt=odo["dt"], young=young,
                                                     with_lost_restart=True)
-    # Both filters watch one compass: once the steady one restarts as lost (the heading itself was wrong: a garage),
-    # so does the rate filter, unless the wheels' drift explains its own disagreement: a significant rate, or a ratio
-    # the calibration has moved (a tyre mismatch, whose rate it must keep).  Left alone, a rate filter 58 deg off
-    # stayed under the 60 deg of its own lost restart for 250 s, learned a rate from it and the heading followed
-    # (urban/garage_start/110: 10.4 deg RMSE after the first minute, 5.0 with this; docs/tuning.md, stop 50).
     calibrated = _cal.corrected(params, state.calibration)
-    rate_follows = computed_once(steady_lost_restart & ~drift_significant & (calibrated < 0.5))
-    offset = _offset.OffsetState(jnp.where(rate_follows, _offset.restarted_like(params, offset, steady).vector,
-                                           offset.vector))
-    # The steady filter locked out of a compass that the rate filter accepts, the two further apart than a shifted hard
-    # iron can turn the compass (FAR_RESTART_DEG): the steady one lagged a drift too slow to be "large" (a hidden 0.1 %
-    # tyre mismatch, 660 µrad/m, independent mixed seed 25: 30 deg off for 4 km, shown whenever the rate fell under
-    # the show rate).  It takes the rate filter's offset, restarted.
-    resync = computed_once((steady.fields().rejected_m > params.filter_reacquire_m) & (clean_weight > 0.5)
-                           & (jnp.abs(wrap(steady.delta - offset.delta)) > deg(_offset.FAR_RESTART_DEG)))
-    steady = _offset.OffsetState(jnp.where(resync, _offset.restarted_like(steady_params, steady, offset).vector,
-                                           steady.vector))
+    offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
+                                                            drift_significant, calibrated)
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
                                    calibrated=calibrated)

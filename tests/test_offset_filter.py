@@ -331,3 +331,47 @@ def test_an_anchored_filter_far_off_a_steady_compass_restarts(disagreement_deg, 
                        jnp.asarray(True), jnp.asarray(False), 0.0, drift_significant=jnp.asarray(False),
                        young=jnp.asarray(False))
     assert np.degrees(float(new.delta)) == pytest.approx(disagreement_deg if restarted else 0.0, abs=0.7)
+
+
+@pytest.mark.parametrize("lost_restart, significant, calibrated, rate_follows", [
+    (True, False, 0.0, True),     # a garage: both filters watched the compass that started the heading
+    (True, True, 0.0, False),     # a significant rate explains the rate filter's own disagreement
+    (True, False, 1.0, False),    # a ratio the calibration has moved: a tyre mismatch, whose rate it keeps
+    (False, False, 0.0, False),   # no restart to follow
+])
+def test_the_rate_filter_follows_the_steady_ones_lost_restart(lost_restart, significant, calibrated, rate_follows):
+    """``follow.restart_together``, first coupling: the rate filter (5 deg, a rate of 1e-4) restarts as the steady one
+    (restarted at 65 deg) did, unless its drift is explained; the steady filter is left as it is."""
+    params = jm.make_params()
+    rate = _rate_filter(params, 1e-4, 1e-5, 5.0)
+    steady = of.OffsetState.pack(_steady(params, 65.0, 77.0).fields()._replace(level=jnp.asarray(deg(64.0))))
+    new_rate, new_steady, follows = jf.restart_together(params, rate, steady, jnp.asarray(lost_restart),
+                                                        jnp.asarray(1.0), jnp.asarray(significant),
+                                                        jnp.asarray(calibrated))
+    assert bool(follows) == rate_follows
+    assert np.degrees(float(new_rate.delta)) == pytest.approx(65.0 if rate_follows else 5.0)
+    assert float(new_rate.fields().beta) == (0.0 if rate_follows else 1e-4)
+    np.testing.assert_array_equal(np.asarray(new_steady.vector), np.asarray(steady.vector))
+
+
+@pytest.mark.parametrize("apart_deg, rejected_m, clean_weight, resync", [
+    (33.0, 1005.0, 0.9, True),    # locked out of a compass the rate filter accepts, further than a hard iron turns it
+    (20.0, 1005.0, 0.9, False),   # what a shifted hard iron can do
+    (33.0, 900.0, 0.9, False),    # not yet filter_reacquire_m
+    (33.0, 1005.0, 0.1, False),   # the rate filter rejects the compass too
+])
+def test_a_locked_out_steady_filter_takes_the_rate_filters_offset(apart_deg, rejected_m, clean_weight, resync):
+    """``follow.restart_together``, second coupling (independent mixed seed 25, a hidden 0.1 % mismatch: the steady
+    filter 30 deg off a clean compass for 4 km): it restarts at the rate filter's offset and keeps its own hold."""
+    params = jm.make_params()
+    rate = _rate_filter(params, 6.6e-4, 1e-5, apart_deg)
+    steady = of.OffsetState.pack(_steady(params, 0.0, 77.0).fields()._replace(rejected_m=jnp.asarray(rejected_m)))
+    new_rate, new_steady, follows = jf.restart_together(params, rate, steady, jnp.asarray(False),
+                                                        jnp.asarray(clean_weight), jnp.asarray(True),
+                                                        jnp.asarray(1.0))
+    assert not bool(follows)
+    np.testing.assert_array_equal(np.asarray(new_rate.vector), np.asarray(rate.vector))
+    f = new_steady.fields()
+    assert np.degrees(float(f.delta)) == pytest.approx(apart_deg if resync else 0.0)
+    assert float(f.since_drift) == 77.0
+    assert float(f.rejected_m) == (0.0 if resync else rejected_m)
