@@ -7,9 +7,9 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
 * speed: each wheel's increment must be within ``max_speed`` over the sample interval (a
   counter fault, a wrong ``counter_modulus`` wrap, a +-3000-count spike);
 * course: the differential increment dD must agree with its recent rate (time-smoothed over
-  ``GUARD_TAU_S``) within ``glitch_pulses`` pulses plus ``glitch_dD_rate`` x dt: dD is the turn,
-  and a car's yaw rate cannot jump within one sample, while a burst of spurious pulses on one
-  wheel moves dD by the whole burst;
+  ``GUARD_TAU_S``) within ``glitch_pulses`` pulses plus ``glitch_dD_rate`` x dt (x dt / COURSE_REFERENCE_DT_S
+  beyond that interval: ``course_tolerance``): dD is the turn, and a car's yaw rate cannot jump within one
+  sample, while a burst of spurious pulses on one wheel moves dD by the whole burst;
 * geometry (front-axle sensors): a dD beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum
   of dD/AD, per sample or over GUARD_WINDOW_M of the raw counts, is no vehicle's turn (a sensor that stopped
   counting: dD/AD = 2); on either axle, a wheel that reads nothing while turning about it would be a lateral
@@ -74,6 +74,28 @@ COMMON_MODULI = (256.0, 1000.0, 1024.0, 4096.0, 10000.0, 16384.0, 32768.0, 65536
 _SIGNED_MODULI = tuple(m * sign for m in COMMON_MODULI for sign in (1.0, -1.0))
 SNAP_PULSES = 3.0
 """A removal within this many pulses of a modulus or of a returning spike is taken as exactly that."""
+
+
+COURSE_REFERENCE_DT_S = 0.1
+"""The sample interval (s, 10 Hz) at which ``glitch_dD_rate`` is the dD rate's change allowed within one sample; over
+longer intervals the allowed change grows with the interval (``course_tolerance``)."""
+
+
+def course_tolerance(params, dpp, step_dt):
+    """How far (m) one sample's dD may depart from its recent rate times the interval ``step_dt`` (s): glitch_pulses
+    pulses of quantization plus glitch_dD_rate x step_dt, and beyond COURSE_REFERENCE_DT_S times step_dt /
+    COURSE_REFERENCE_DT_S more.
+
+    A yaw acceleration changes the yaw rate in proportion to the time, and dD by the rate times the time: the
+    departure grows as step_dt^2.  glitch_dD_rate (0.5 m/s of dD rate, 18 deg/s of yaw rate on a 1.6-m track, within
+    0.1 s) was set at 10 Hz, where it is a yaw acceleration of ~185 deg/s^2.  Read as a fixed change per sample, at
+    1 Hz it allowed 18 deg/s within a second, and a car entering a street corner turns faster than that: the turn
+    was substituted by the recent (straight) rate and the wheel heading lost it (independent simulator logged at
+    1 Hz: odometer mode 92 deg RMSE, the default 23 deg; docs/tuning.md, stop 51).  At 10 Hz and faster the
+    tolerance is unchanged.  A burst of spurious pulses smaller than the tolerance then passes as a turn: at 1 Hz the
+    counts cannot tell 30 pulses of burst from a second of cornering."""
+    stretch = jnp.maximum(step_dt / COURSE_REFERENCE_DT_S, 1.0)
+    return params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt * stretch
 
 
 class GuardFields(NamedTuple):
@@ -148,7 +170,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     left_fast = jnp.abs(d_left) > speed_limit
     right_fast = jnp.abs(d_right) > speed_limit
     dD = d_left - d_right
-    tol = params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt
+    tol = course_tolerance(params, dpp, step_dt)
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
     # A front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum curvature is no
