@@ -86,7 +86,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("reliability_scale_deg", 2.0, "deg", "heading_reliability = 1 / (1 + bound / this)"),
     ParamSpec("max_speed", 90.0, "m/s", "plausibility: larger wheel speeds are counter faults and are skipped"),
     ParamSpec("glitch_pulses", 4.0, "1", "plausibility (jaxmodel/plausibility.py): dD may depart from its recent rate by this many pulses"),
-    ParamSpec("glitch_dD_rate", 0.5, "m/s", "plausibility: plus this change of the dD rate over the sample interval (yaw acceleration)"),
+    ParamSpec("glitch_dD_rate", 0.5, "m/s", "plausibility: plus this change of the dD rate within a 0.1-s sample (a yaw acceleration: over longer intervals the allowed change grows with the interval, plausibility.course_tolerance)"),
     # --- robust F-DELTA filter (jaxmodel/offset_filter.py; FIG. 8G's filter, fitted in docs/tuning.md) ---
     ParamSpec("filter_offset_psd", 4.127e-08, "rad2/m", "random walk of the wheel heading offset per metre driven (10x the fitted 4.127e-09: held-out seeds and single spurious pulses, docs/tuning.md stop 28)"),
     ParamSpec("filter_rate_psd", 1.206e-15, "rad2/m3", "random walk of the offset's rate per metre (tyre wear, load)"),
