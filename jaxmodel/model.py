@@ -244,12 +244,12 @@ def _odometer(params, state, sample, track_table, robust=False):
     left = jnp.where(counts_finite, sample.left_pulses, state.last_left)
     right = jnp.where(counts_finite, sample.right_pulses, state.last_right)
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
+    g = state.guard.fields()  # the wheels' recent speeds (robust modes)
     expected_left = expected_right = 0.0
     if robust:
         # Robust modes decode around the increment the wheels' recent speed predicts (the guard's rates): a counter
         # that turns by more than half its modulus between two samples is still unwrapped (a 12-bit counter on a
         # 2-cm pulse at 20 m/s logged at 0.5 Hz; an 8-bit one logged at 1 Hz above 2.5 m/s).
-        g = state.guard.fields()
         recent = time_ok & (dt <= _guard.GUARD_HORIZON_S)
         expected_left = jnp.where(recent, g.rate_left * dt / dpp_left, 0.0)
         expected_right = jnp.where(recent, g.rate_right * dt / dpp_right, 0.0)
@@ -265,7 +265,6 @@ def _odometer(params, state, sample, track_table, robust=False):
         dt_counts = jnp.where(time_ok, jnp.clip(since, dt, jnp.maximum(dt, COUNTS_HOLD_MAX_S)), 0.0)
         # Only where the wheels' recent speed would have counted HOLD_MIN_PULSES in the sample: fewer unchanged
         # counts are a slow wheel's quantization.
-        g = state.guard.fields()
         expected = jnp.maximum(jnp.abs(g.rate_left), jnp.abs(g.rate_right)) * dt / dpp
         held = time_ok & counts_finite & ~changed & (since < COUNTS_HOLD_MAX_S) & (expected >= HOLD_MIN_PULSES)
     last_count_time = jnp.where(jnp.isfinite(sample.time_s) & (~started | (changed & time_ok)), sample.time_s,

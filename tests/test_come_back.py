@@ -1,37 +1,21 @@
 """The default mode comes back after it was wrong (issue 10, stop 50): drives of the independent simulator
 (bench/independent_sim.py) on which the heading stayed far off a clean compass."""
 
-import csv
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-import independent_sim as sim  # noqa: E402
-
-import jaxmodel as jm  # noqa: E402
-from identification.diagnostics import checked_params  # noqa: E402
-from identification.drive_log import read_drive  # noqa: E402
-from identification.estimate import estimate_drive  # noqa: E402
+from independent_drives import heading_error_deg, independent_sim, unidentified_params
 
 
 def _error_deg(tmp_path, kind, seed, hide_mismatch=False):
     """(time s, heading error deg) of the default mode on an independent drive; ``hide_mismatch`` gives both wheels
     the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does)."""
-    path, params_path = sim.make_drive(kind, seed, tmp_path)
-    params, extra = checked_params(params_path)
-    params, _ = jm.for_unidentified_vehicle(params, extra["keys"])
+    path, params_path = independent_sim.make_drive(kind, seed, tmp_path)
+    params = unidentified_params(params_path)
     if hide_mismatch:
         mean = 0.5 * (params.dpp_left + params.dpp_right)
         params = params._replace(dpp_left=mean, dpp_right=mean)
-    cols = estimate_drive(params, read_drive(path), jm.Config())
-    with open(Path(path).with_suffix(".truth.csv"), newline="") as f:
-        rows = list(csv.DictReader(f))
-    t = np.array([float(r["time_s"]) for r in rows])
-    truth = np.array([float(r["heading_unwrapped_deg"]) for r in rows])
-    return t, (np.asarray(cols["heading_deg"]) - truth + 180.0) % 360.0 - 180.0
+    return heading_error_deg(path, params)
 
 
 @pytest.mark.slow

@@ -3,8 +3,6 @@ its 10-Hz log, on which the constants were fitted."""
 
 import csv
 import functools
-import sys
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -14,14 +12,10 @@ import jaxmodel as jm
 from identification import scenario_eval as ev
 from identification import scenarios as sc
 from identification import simulate as simulate_module
-from identification.diagnostics import checked_params
 from identification.drive_log import read_drive
-from identification.estimate import estimate_drive
+from independent_drives import heading_error_deg, independent_sim, unidentified_params
 from jaxmodel import kalman, offset_filter, plausibility
 from jaxmodel.model import _decode_counter
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-import independent_sim  # noqa: E402
 
 
 def _drive_at(monkeypatch, rate_hz, name):
@@ -139,19 +133,11 @@ def test_a_drive_logged_at_1_hz_is_estimated_as_at_10_hz(tmp_path, monkeypatch, 
     ``offset_filter.LOST_LOOKS`` 1.65 deg (1.41 at 10 Hz), the odometer mode 0.96 deg."""
     monkeypatch.setattr(independent_sim, "LOG_EVERY", 50)
     path, params_path = independent_sim.make_drive(kind, seed, tmp_path)
-    params, extra = checked_params(params_path)
-    params, _ = jm.for_unidentified_vehicle(params, extra["keys"])
-    drive = read_drive(path)
-    assert abs(np.median(np.diff(np.asarray(drive.inputs.time_s))) - 1.0) < 1e-6
-    with open(Path(path).with_suffix(".truth.csv"), newline="") as f:
-        rows = list(csv.DictReader(f))
-    t = np.array([float(r["time_s"]) for r in rows])
-    truth = np.array([float(r["heading_unwrapped_deg"]) for r in rows])
-    after = t >= 60.0
+    params = unidentified_params(params_path)
+    assert abs(np.median(np.diff(np.asarray(read_drive(path).inputs.time_s))) - 1.0) < 1e-6
     for mode, limit in (("odometer", odometer_limit), ("complementary", 2.5)):
-        cols = estimate_drive(params, drive, jm.Config(mode=mode))
-        err = (np.asarray(cols["heading_deg"]) - truth + 180.0) % 360.0 - 180.0
-        assert np.sqrt(np.mean(err[after] ** 2)) < limit, mode
+        t, err = heading_error_deg(path, params, jm.Config(mode=mode))
+        assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < limit, mode
 
 
 def test_a_counter_is_unwrapped_around_the_increment_the_wheels_predict():
@@ -181,15 +167,8 @@ def test_an_8_bit_counter_logged_at_1_hz_is_unwrapped(tmp_path, monkeypatch):
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    params, extra = checked_params(params_path)
-    params, _ = jm.for_unidentified_vehicle(params._replace(counter_modulus=jnp.asarray(256.0)), extra["keys"])
-    drive = read_drive(path)
-    assert np.max(np.asarray(drive.inputs.left_pulses)) < 256
-    with open(Path(path).with_suffix(".truth.csv"), newline="") as f:
-        truth_rows = list(csv.DictReader(f))
-    t = np.array([float(r["time_s"]) for r in truth_rows])
-    truth = np.array([float(r["heading_unwrapped_deg"]) for r in truth_rows])
+    params = unidentified_params(params_path)._replace(counter_modulus=jnp.asarray(256.0))
+    assert np.max(np.asarray(read_drive(path).inputs.left_pulses)) < 256
     for mode, limit in (("odometer", 6.0), ("complementary", 3.5)):
-        cols = estimate_drive(params, drive, jm.Config(mode=mode))
-        err = (np.asarray(cols["heading_deg"]) - truth + 180.0) % 360.0 - 180.0
+        t, err = heading_error_deg(path, params, jm.Config(mode=mode))
         assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < limit, mode
