@@ -34,7 +34,21 @@ def test_a_steady_filter_locked_out_by_a_slow_hidden_drift_comes_back(tmp_path):
     the rate filter followed the drift and accepted the compass, the steady filter lagged 30 deg and was rejected;
     once the calibration's first step took the rate under the show rate (240 s), the heading was the steady filter's,
     32 deg off for 4.6 km (18.4 deg RMSE).  The far restart alone: 7.25 deg; with the steady filter taking the rate
-    filter's offset: 5.67 deg, within 6 deg from 270 s on."""
+    filter's offset: 5.67 deg, within 6.8 deg from 270 s on.  Since filter_follow_hold_rate is 5e-4 rad/m (stop 52)
+    the drift is captured and the steady filter held to the rate filter from the start: 1.71 deg, within 4.9 deg
+    from 270 s on."""
     t, err = _error_deg(tmp_path, "mixed", 25, hide_mismatch=True)
-    assert np.max(np.abs(err[t > 270.0])) < 7.0
-    assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 7.0
+    assert np.max(np.abs(err[t > 270.0])) < 6.0
+    assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 3.0
+
+
+@pytest.mark.slow
+def test_a_slow_hidden_drift_is_captured_and_followed(tmp_path):
+    """highway seed 26 with its 0.16 % tyre mismatch hidden: the rate filter measured -600 to -820 µrad/m from 30 s
+    on, under the 1e-3 rad/m of a large drift, so nothing captured it and no follow hold started; the steady filter
+    lagged 10-38 deg, shown whenever the rate's significance dipped (3.93 deg RMSE, 11.6 deg at worst).  With
+    filter_follow_hold_rate 5e-4 rad/m (docs/tuning.md, stop 52): 0.79 deg, 2.5 deg at worst."""
+    t, err = _error_deg(tmp_path, "highway", 26, hide_mismatch=True)
+    after_first_minute = err[t >= 60.0]
+    assert np.sqrt(np.mean(after_first_minute ** 2)) < 1.5
+    assert np.max(np.abs(after_first_minute)) < 4.0
