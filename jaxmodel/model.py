@@ -154,6 +154,7 @@ class State(NamedTuple):
     dequant: _dequant.DequantState  # the wheel heading between pulses (robust modes that turn with the wheels)
     soft_iron: _soft.SoftIronState  # the compass's soft-iron deviation learned from turns (Config.soft_iron)
     soft_field: _sfield.SoftFieldState  # the soft iron read from the field magnitude per heading (Config.soft_iron)
+    stale: _compass.StaleState    # the last raw compass reading and the wheels' turn since it changed (robust modes)
 
 
 class Outputs(NamedTuple):
@@ -199,7 +200,7 @@ def init_state(params) -> State:
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
         hard_iron=_hard_iron.init_hard_iron_state(params), shift=_shift.init_shift_state(),
         dequant=_dequant.init_dequant_state(), soft_iron=_soft.init_soft_iron_state(),
-        soft_field=_sfield.init_soft_field_state(),
+        soft_field=_sfield.init_soft_field_state(), stale=_compass.init_stale_state(),
     )
 
 
@@ -417,6 +418,12 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     robust = config.robust
     odo = _odometer(params, state, sample, track_table, robust)
     d_t, alpha = odo["d_t"], odo["alpha"]
+    stale = state.stale
+    if robust:
+        # A reading repeated while the wheels turn is a logger's held value: missing (compass.stale_check).
+        stale, held = _compass.stale_check(stale, sample.compass_x, sample.compass_y, alpha)
+        sample = sample._replace(compass_x=jnp.where(held, jnp.nan, sample.compass_x),
+                                 compass_y=jnp.where(held, jnp.nan, sample.compass_y))
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
     state, hard_iron, h_c_raw, b_m, compass_ok, hard_iron_restart = _compass_stage(params, state, sample, config,
@@ -548,7 +555,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
         x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
         guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron, shift=fd.get("shift", state.shift),
-        dequant=dequant, soft_iron=soft_iron, soft_field=soft_field,
+        dequant=dequant, soft_iron=soft_iron, soft_field=soft_field, stale=stale,
     )
     out = Outputs(
         heading=heading, wheel_heading=wheel_heading, compass_heading=h_c, x=x, y=y, speed=odo["speed"], a=a,
