@@ -261,13 +261,15 @@ def _odometer(params, state, sample, track_table, robust=False):
     # that repeat them.  The seed filter keeps the seed's per-sample interval.
     changed = counts_finite & ((n_left != 0.0) | (n_right != 0.0))
     since = sample.time_s - state.last_count_time
-    dt_counts, held = dt, jnp.zeros_like(changed)
+    dt_counts, held, motion_dt = dt, jnp.zeros_like(changed), dt
     if robust:
         dt_counts = jnp.where(time_ok, jnp.clip(since, dt, jnp.maximum(dt, COUNTS_HOLD_MAX_S)), 0.0)
         # Only where the wheels' recent speed would have counted HOLD_MIN_PULSES in the sample: fewer unchanged
         # counts are a slow wheel's quantization.
         expected = jnp.maximum(jnp.abs(g.rate_left), jnp.abs(g.rate_right)) * dt / dpp
         held = time_ok & counts_finite & ~changed & (since < COUNTS_HOLD_MAX_S) & (expected >= HOLD_MIN_PULSES)
+        # Unchanged for longer than twice the hold, the car stood: the change came within this sample.
+        motion_dt = jnp.where(since > 2.0 * COUNTS_HOLD_MAX_S, dt, dt_counts)
     last_count_time = jnp.where(jnp.isfinite(sample.time_s) & (~started | (changed & time_ok)), sample.time_s,
                                 state.last_count_time)
     # Plausibility (speed and course, jaxmodel/plausibility.py): a glitched sample keeps the
@@ -275,7 +277,7 @@ def _odometer(params, state, sample, track_table, robust=False):
     if robust:
         d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, guard_state = _guard.guard(
             params, state.guard, n_left * dpp_left, n_right * dpp_right, dt_counts, time_ok, counts_finite & started,
-            dpp_left, dpp_right, held)
+            dpp_left, dpp_right, held, motion_dt)
         n_left = jnp.where(raw_ok, n_left, d_left / dpp_left)
         n_right = jnp.where(raw_ok, n_right, d_right / dpp_right)
         # odometer_valid reports counter faults (a wheel beyond max_speed, non-finite counts), as
