@@ -160,8 +160,9 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     the first sample (no motion).  dt: the time the increments cover (s; since the counts last changed, see
     ``model.COUNTS_HOLD_MAX_S``); ``held``: the counts repeat the last ones within that hold (no news: nothing is
     checked and the rates wait for the change that covers the hold).  ``motion_dt`` (s; default dt): the time the
-    wheels can have moved in, for the lateral acceleration of a turn about a still wheel: the sample's own interval
-    after a standstill, when dt (the time since the counts changed, up to the hold) is longer than the car moved.
+    wheels can have moved in, for the course check's change of turn rate and the lateral acceleration of a turn
+    about a still wheel: the sample's own interval after a standstill, when dt (the time since the counts changed, up
+    to the hold) is longer than the car moved.
     """
     g = gs.fields()
     dpp = jnp.maximum(dpp_left, dpp_right)
@@ -172,7 +173,10 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     left_fast = jnp.abs(d_left) > speed_limit
     right_fast = jnp.abs(d_right) > speed_limit
     dD = d_left - d_right
-    tol = course_tolerance(params, dpp, step_dt)
+    # After a standstill the wheels moved within the sample, not over the hold: 25 pulses on one wheel passed as a
+    # pivot turn of 18-42 deg (docs/tuning.md, stop 52).
+    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), 0.1)
+    tol = course_tolerance(params, dpp, moved_dt)
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
     # A front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum curvature is no
@@ -190,9 +194,6 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     dead_left = (d_left == 0.0) & (d_right != 0.0)
     one_dead = dead_left | ((d_right == 0.0) & (d_left != 0.0))
     lateral_limit = MAX_LATERAL_ACCEL * track * step_dt * step_dt  # the largest |AD dD| (m^2) of a sample
-    # After a standstill the wheels moved within the sample, not over the hold: 25 pulses on one wheel passed as a
-    # pivot turn of 42 deg (docs/tuning.md, stop 52).
-    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), 0.1)
     dead_at_speed = one_dead & ((jnp.abs(dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * moved_dt * moved_dt)
     impossible = computed_once(speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
