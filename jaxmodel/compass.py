@@ -115,11 +115,11 @@ def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):
 
 
 STALE_TURN_DEG = 5.0
-"""A compass reading repeated exactly while the wheels turned more than this (deg) is stale (``stale_check``)."""
+"""A compass reading repeated exactly while the wheels turned by more than this (deg, net) is stale (``stale_check``)."""
 
 
 class StaleState(NamedTuple):
-    """The last finite raw compass reading (compass units) and the wheels' turn (rad, |alpha| summed) since it
+    """The last finite raw compass reading (compass units) and the wheels' net turn (rad, alpha summed) since it
     last changed."""
     last_x: jnp.ndarray
     last_y: jnp.ndarray
@@ -134,6 +134,9 @@ def init_stale_state() -> StaleState:
 def stale_check(state: StaleState, compass_x, compass_y, alpha):
     """Whether this raw reading repeats the last one exactly while the wheels turned by more than STALE_TURN_DEG.
 
+    The net turn: on a straight road the wheel heading's pulse quantization jitters by a pulse each way, and a
+    noise-free compass repeats itself there (|alpha| summed made a synthetic straight stale within a second).
+
     A logger or gateway that lost the magnetometer's messages repeats its last value (a compass sampled slower than
     the log does so between its updates); a magnetometer's reading changes by microteslas when the car turns 5 deg
     in a 20 µT field.  Held for a turn, it is wrong by the turn, steadily, and 60 s of it restarted the filter from
@@ -141,8 +144,8 @@ def stale_check(state: StaleState, compass_x, compass_y, alpha):
     repeated reading is still a reading.  Returns (new state, stale [bool]).
     """
     same = (compass_x == state.last_x) & (compass_y == state.last_y)
-    turn = jnp.where(same, state.turn + jnp.abs(alpha), 0.0)
+    turn = jnp.where(same, state.turn + alpha, 0.0)
     keep = jnp.isfinite(compass_x) & jnp.isfinite(compass_y)
     new = StaleState(jnp.where(keep, compass_x, state.last_x), jnp.where(keep, compass_y, state.last_y), turn)
-    return new, turn > deg(STALE_TURN_DEG)
+    return new, jnp.abs(turn) > deg(STALE_TURN_DEG)
 

@@ -64,6 +64,11 @@ def test_a_reading_repeated_while_the_wheels_turn_is_stale():
         state, stale = jc.stale_check(state, jnp.asarray(x), jnp.asarray(-7.0), jnp.asarray(a))
         flags.append(bool(stale))
     assert flags == [False, False, False, False, False, False, True, False, False, False, False]
+    # On a straight road the wheel heading jitters by a pulse each way: a noise-free compass repeating itself there
+    # is not stale (the net turn counts, not |alpha|).
+    for k in range(40):
+        state, stale = jc.stale_check(state, jnp.asarray(5.0), jnp.asarray(-7.0), jnp.asarray((-1) ** k * 2 * alpha))
+        assert not bool(stale)
 
 
 @pytest.mark.slow
