@@ -21,9 +21,9 @@ def test_a_compass_reading_of_exact_zeros_is_a_missing_sample():
     assert ok == [False, True, True, True, False]  # the last: no field left once the hard iron is taken out
 
 
-def _faulted_error_deg(tmp_path, kind, seed, inject, config=jm.Config()):
-    """(time s, heading error deg) of the default mode on an independent drive, clean and with ``inject`` (a function
-    of the drive's columns dict, changing it in place) applied to its log."""
+def _rmse_from(tmp_path, kind, seed, start, inject, config=jm.Config()):
+    """Heading RMSE (deg) from sample ``start`` to the end of an independent drive, (clean, with ``inject`` (a function
+    of the drive's columns dict, changing it in place) applied to its log)."""
     path, params_path = independent_sim.make_drive(kind, seed, tmp_path)
     path = Path(path)
     params = unidentified_params(params_path)
@@ -37,7 +37,8 @@ def _faulted_error_deg(tmp_path, kind, seed, inject, config=jm.Config()):
                comments="", fmt="%.10g")
     (tmp_path / "faulted.truth.csv").write_text(path.with_suffix(".truth.csv").read_text())
     _, err = heading_error_deg(faulted, params, config)
-    return t, clean, err
+    after = t >= t[start]
+    return tuple(float(np.sqrt(np.mean(e[after] ** 2))) for e in (clean, err))
 
 
 @pytest.mark.slow
@@ -47,10 +48,8 @@ def test_thirty_seconds_of_zeros_from_the_compass_leave_the_heading_alone(tmp_pa
     def zeros(c):
         c["compass_x"][4200:4500] = 0.0
         c["compass_y"][4200:4500] = 0.0
-    t, clean, err = _faulted_error_deg(tmp_path, "mixed", 53, zeros)
-    after = t >= 420.0
-    rmse = lambda e: float(np.sqrt(np.mean(e[after] ** 2)))
-    assert rmse(err) < rmse(clean) + 0.2
+    clean, faulted = _rmse_from(tmp_path, "mixed", 53, 4200, zeros)
+    assert faulted < clean + 0.2
 
 
 def test_a_reading_repeated_while_the_wheels_turn_is_stale():
@@ -80,10 +79,8 @@ def test_a_compass_frozen_for_a_minute_leaves_the_heading_alone(tmp_path):
     def frozen(c):
         c["compass_x"][3000:3600] = c["compass_x"][3000]
         c["compass_y"][3000:3600] = c["compass_y"][3000]
-    t, clean, err = _faulted_error_deg(tmp_path, "mixed", 53, frozen)
-    after = t >= 300.0
-    rmse = lambda e: float(np.sqrt(np.mean(e[after] ** 2)))
-    assert rmse(err) < rmse(clean) + 0.5
+    clean, faulted = _rmse_from(tmp_path, "mixed", 53, 3000, frozen)
+    assert faulted < clean + 0.5
 
 
 @pytest.mark.slow
@@ -99,7 +96,5 @@ def test_a_burst_on_one_wheel_of_a_standing_car_is_no_turn(tmp_path, kind, seed,
     +0.08 deg there, odometer-only +0.47 deg."""
     def burst(c):
         c["left_pulses"][sample:] += 25
-    t, clean, err = _faulted_error_deg(tmp_path, kind, seed, burst, jm.Config(mode=mode))
-    after = t >= t[sample]
-    rmse = lambda e: float(np.sqrt(np.mean(e[after] ** 2)))
-    assert rmse(err) < rmse(clean) + (0.15 if mode == "complementary" else 1.0)
+    clean, faulted = _rmse_from(tmp_path, kind, seed, sample, burst, jm.Config(mode=mode))
+    assert faulted < clean + (0.15 if mode == "complementary" else 1.0)
