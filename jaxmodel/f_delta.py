@@ -65,7 +65,9 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
     # The start's anchor is young for its first km of absolute headings: one straight road on a grade can be it.
     young = _offset.young(params, distance_filtered)
-    offset = _offset.predict(params, state.offset, odo["AD"], d_t, alpha, odo["turn_sigma"])
+    calibrated = _cal.corrected(params, state.calibration)
+    offset = _offset.predict(_follow.calibrated_rate_params(params, calibrated), state.offset, odo["AD"], d_t, alpha,
+                             odo["turn_sigma"])
     predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
@@ -83,7 +85,6 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                                     absolute_ok & ~initializing, drifting, tilt, d_lost,
                                                     drift_significant, dt=odo["dt"], young=young,
                                                     with_lost_restart=True)
-    calibrated = _cal.corrected(params, state.calibration)
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
     # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.

@@ -22,6 +22,27 @@ CALIBRATED_SHOW_FRACTION = 0.1
 """filter_follow_show_rate is this much smaller once the calibration has moved the ratio (``follow``)."""
 
 
+CALIBRATED_TURN_FRACTION = 0.5
+"""The rate filter's turn noise moves this fraction of the way from filter_turn_sigma to filter_steady_turn_sigma once
+the calibration has moved the ratio (``calibrated_rate_params``)."""
+
+
+def calibrated_rate_params(params, calibrated):
+    """Constants of the rate filter once the calibration has moved the ratio (``calibrated`` in [0, 1],
+    ``calibration.corrected``): its turn noise is CALIBRATED_TURN_FRACTION of the way to the steady filter's.
+
+    After a found tyre mismatch the steady filter takes the rate filter's state for filter_follow_hold_m (``follow``),
+    so the heading is the rate filter's, whose turn noise (16 % of each turn against the steady filter's 3.5 %) kept
+    its offset's sigma near 2.3 deg on a highway and let it follow the compass's errors at every curve
+    (highway/mismatch_1.5/106: 1.82 deg against its mismatch-free twin's 0.78).  Drives whose tyres match the file
+    are untouched (``calibrated`` 0).  Fraction 0 / 0.3 / 0.5 / 0.7 / 1 on the matrix's tuning seeds: geometric mean
+    0.844 / 0.836 / 0.833 / 0.834 / 0.854 deg (mismatch 2.5 %: 1.02 / 1.00 / 1.01 / 1.06 / 1.29); docs/tuning.md, stop 53.
+    """
+    turn_sigma = params.filter_turn_sigma + CALIBRATED_TURN_FRACTION * calibrated * (
+        params.filter_steady_turn_sigma - params.filter_turn_sigma)
+    return params._replace(filter_turn_sigma=turn_sigma)
+
+
 def restart_together(params, rate_filter, steady, steady_lost_restart, clean_weight, drift_significant, calibrated):
     """One filter's restart restarts the other where the compass they share says both were wrong.
 

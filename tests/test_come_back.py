@@ -63,3 +63,14 @@ def test_an_anchored_filter_is_not_restarted_by_a_strong_anomaly(tmp_path):
     t, err = _error_deg(tmp_path, "mixed", 47)
     assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 2.5
     assert np.max(np.abs(err[(t > 840.0) & (t < 880.0)])) < 8.0
+
+
+@pytest.mark.slow
+def test_after_a_found_hidden_mismatch_the_heading_does_not_chase_the_compass_at_turns(tmp_path):
+    """urban seed 29 with its 0.7 % tyre mismatch hidden: the calibration finds it and the steady filter takes the rate
+    filter's state for the follow hold, whose turn noise (16 % of each turn) let the heading follow the compass's
+    error at every corner: 3.03 deg against 1.93 deg with the mismatch given.  Once the ratio has moved, the rate
+    filter's turn noise is halfway to the steady filter's (follow.calibrated_rate_params, docs/tuning.md stop 53):
+    1.57 deg."""
+    t, err = _error_deg(tmp_path, "urban", 29, hide_mismatch=True)
+    assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 2.2

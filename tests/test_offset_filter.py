@@ -173,6 +173,22 @@ def test_follow_shows_a_small_significant_rate_once_the_calibration_has_moved_th
     assert shown_deg[0.0] == pytest.approx(0.0, abs=0.05) and shown_deg[1.0] == pytest.approx(10.0, abs=0.05)
 
 
+def test_the_rate_filters_turn_noise_moves_towards_the_steady_filters_once_the_calibration_has_moved_the_ratio():
+    """follow.calibrated_rate_params: the parameters untouched (to the bit) while the tyres match the file
+    (``calibrated`` 0), the turn noise CALIBRATED_TURN_FRACTION of the way to filter_steady_turn_sigma once the ratio
+    has moved (1); nothing else changes, and a turn of 0.5 rad grows F-DELTA's variance by that noise squared."""
+    params = jm.make_params()
+    assert jf.calibrated_rate_params(params, jnp.asarray(0.0)) == params
+    moved = jf.calibrated_rate_params(params, jnp.asarray(1.0))
+    midway = float(params.filter_turn_sigma) + jf.CALIBRATED_TURN_FRACTION * (
+        float(params.filter_steady_turn_sigma) - float(params.filter_turn_sigma))
+    assert float(moved.filter_turn_sigma) == pytest.approx(midway, rel=1e-12)
+    assert moved._replace(filter_turn_sigma=params.filter_turn_sigma) == params
+    start = of.start(params)
+    grown = [float(of.predict(p, start, 0.0, 0.0, 0.5).fields().p00 - start.fields().p00) for p in (params, moved)]
+    assert grown == pytest.approx([(0.5 * float(params.filter_turn_sigma)) ** 2, (0.5 * midway) ** 2], rel=1e-9)
+
+
 @pytest.mark.parametrize("relative, expected", [(0.0, 0.0), (5e-5, 0.0), (1e-4, 0.0), (2e-4, 0.5), (3e-4, 1.0),
                                                 (-0.013, 1.0)])
 def test_corrected_is_a_smoothstep_in_the_ratios_relative_move(relative, expected):
