@@ -58,6 +58,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
@@ -230,9 +231,7 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     # Significance of the correction (claim 5, "correctness ... and an intensity"): the ratio
     # applied is k0 + lam (mean - k0), lam = 1 / (1 + (z^2 var_mean / d^2)^2), so a mean that the
     # stretches do not distinguish from the parameter ratio is not applied (a shrinkage estimator).
-    n_eff = safe_div(weight * weight, weight2, fallback=1.0)
-    var_s = (m2 + SIGMA_PRIOR_STRETCHES * params.cal_stretch_sigma ** 2) / (weight + SIGMA_PRIOR_STRETCHES)
-    var_mean = safe_div(var_s, n_eff, fallback=1.0)
+    var_mean = _mean_variance(params, weight, weight2, m2)
     d = new_mean - k0
     noise_to_signal = safe_div(params.cal_significance ** 2 * var_mean, d * d, eps=1e-300, fallback=1e150)
     lam = 1.0 / (1.0 + jnp.minimum(noise_to_signal, 1e150) ** 2)
@@ -283,6 +282,24 @@ def corrected(params, cs):
     relative = jnp.abs(cs.ratio / parameter_ratio(params) - 1.0)
     t = jnp.clip((relative - low) / (high - low), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
+
+
+def _mean_variance(params, weight, weight2, m2):
+    """Variance of the filtered ratio: the stretches' weighted spread, pooled with SIGMA_PRIOR_STRETCHES
+    pseudo-stretches of cal_stretch_sigma, over the effective number of stretches W^2 / W2."""
+    n_eff = safe_div(weight * weight, weight2, fallback=1.0)
+    var_s = (m2 + SIGMA_PRIOR_STRETCHES * params.cal_stretch_sigma ** 2) / (weight + SIGMA_PRIOR_STRETCHES)
+    return safe_div(var_s, n_eff, fallback=1.0)
+
+
+def stretches_rate(params, cs, track):
+    """The wheel heading's drift (rad/m) that the stretches' filtered ratio says the applied one leaves, and its
+    significance: rate = (k - mean) / T (``capture_rate`` moves k by about -rate T), z = |k - mean| / its sigma
+    (``_mean_variance``).  Not yet applied, the stretches may still hold a mismatch of 1-3e-4 that their significance
+    test (cal_significance) keeps out.  track: T (m).  Returns (rate, z)."""
+    f = cs.fields()
+    gap = f.ratio - f.mean
+    return safe_div(gap, track), jnp.abs(gap) * jax.lax.rsqrt(_mean_variance(params, f.weight, f.weight2, f.m2))
 
 
 def capture_rate(params, cs, rate, track, capture):

@@ -29,7 +29,7 @@ def learns_shift(config):
 
 def captures_drift(config):
     """Whether a large, significant drift of the rate filter is captured into the left/right ratio
-    (``model._calibrate``): the robust complementary and Kalman modes with the calibration on (the other two are
+    (``drift_capture.calibrate``): the robust complementary and Kalman modes with the calibration on (the other two are
     the matrix's single-sensor references).  In the Kalman mode the rate filter runs beside the Kalman filter,
     which reads its ratio and, while its drift is large, that rate (stop 48: a mismatch of 0.5-2.5 % left the
     Kalman filter 50-90 deg off without the capture and the release of its beta, 1.1-2.8 deg with them)."""
@@ -87,7 +87,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                                     with_lost_restart=True)
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
-    # The calibration confirms a drift by capturing it (``model._calibrate``); without it a large drift starts the hold.
+    # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts the hold.
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
                                    calibrated=calibrated)
     f_delta = shown.delta

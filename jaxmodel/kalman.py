@@ -446,7 +446,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     whether it replaced the compass on this sample;
     odometer_ok: the odometer's own plausibility of the counts; initialized: H_W has been
     started (1.0); rate_change: the change of the wheel course's rate per metre by a new left/right calibration
-    this sample (rad/m, model._calibrate), which beta^ follows; rate_variance: the variance beta^ is released to
+    this sample (rad/m, drift_capture.calibrate), which beta^ follows; rate_variance: the variance beta^ is released to
     (rad^2/m^2); lost_elsewhere: the complementary filter restarted as lost on this sample (see _reacquire).
     ``enabled`` is static: False (other modes) passes the state through.
     """

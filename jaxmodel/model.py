@@ -23,6 +23,7 @@ from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
 from . import dequantize as _dequant
+from . import drift_capture as _capture
 from . import f_delta as _fdelta
 from . import hard_iron as _hard_iron
 from . import heading_filter as _hf
@@ -222,10 +223,6 @@ took each update for a burst at five times the speed)."""
 HOLD_MIN_PULSES = 2.0
 """Unchanged counts are held only where the wheels' recent speed would have counted this many pulses in the sample."""
 
-RECALIBRATION_HOLD = 1e-4
-"""Relative change of the ratio in one calibration update beyond which the steady F-DELTA's follow hold restarts."""
-
-
 def _decode_counter(count, last, modulus, expected=0.0):
     """Pulse increment of a counter that wraps at ``modulus``: the one within modulus/2 of ``expected`` (pulses; 0:
     in [-modulus/2, modulus/2]).  An unchanged count is no increment (a held counter, not a whole wrap)."""
@@ -374,37 +371,6 @@ def _learns_soft_iron(config):
     return config.soft_iron and config.robust and config.mode != "compass"
 
 
-def _calibrate(params, state, config, odo, h_c, compass_ok, offset, steady, initialized):
-    """EP 0619873: the left/right dpp calibration; in the robust complementary mode a large, significant
-    drift of the rate filter is captured into the ratio at once.  A new calibration shifts the offset's
-    rate and may restart the steady filter's follow hold.  Returns (calibration state, offset, steady, the change
-    of the wheel heading's rate per metre [rad/m], for the Kalman mode's beta)."""
-    robust = config.robust
-    cal_state = _cal.calibration_step(
-        params, state.calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
-        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
-        robust=robust)
-    if _fdelta.captures_drift(config):
-        # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
-        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
-        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
-        cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
-    # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
-    rate_change = jnp.zeros_like(odo["track"])
-    if config.calibration and robust:
-        rel_left = cal_state.dpp_left / state.calibration.dpp_left - 1.0
-        rel_right = cal_state.dpp_right / state.calibration.dpp_right - 1.0
-        rate_change = (rel_left - rel_right) / odo["track"]
-        offset = _offset.shift_rate(offset, rate_change)
-        # A ratio still moving by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift (a tyre
-        # mismatch, captured) says the wheels drift: the steady filter follows the rate filter while the stretches
-        # refine it.
-        moving = jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD
-        moving = moving & (offset.since_drift < params.filter_follow_hold_m)
-        steady = _offset.restart_hold(steady, computed_once(moving))
-    return cal_state, offset, steady, rate_change
-
-
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
     """Process one sample; returns (new state, Outputs).  See the module docstring for the order.
 
@@ -496,8 +462,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         curvature=odo["curvature"], e_c=e_c, compass_ok=compass_ok & (initialized > 0.5), enabled=config.refine_a)
 
     # EP 0619873: left/right distance-per-pulse calibration.
-    cal_state, offset, steady, rate_change = _calibrate(params, state, config, odo, h_c, compass_ok, fd["offset"],
-                                                        fd["steady"], initialized)
+    cal_state, offset, steady, rate_change = _capture.calibrate(
+        params, state.calibration, config, odo, h_c, compass_ok, fd["offset"], fd["steady"], initialized)
 
     # US 4,680,715: Kalman mode (its own heading and position).
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(

@@ -1,0 +1,90 @@
+"""The wheels' drift confirmed: the left/right calibration (EP 0619873) run with the robust F-DELTA's rate filter.
+
+``calibrate`` runs the seed's calibration (``calibration.calibration_step``), then, in the robust complementary and
+Kalman modes (``f_delta.captures_drift``), confirms a drift of the wheel heading that the rate filter measures:
+
+* a large, significant drift (``offset_filter.large_drift``, beyond CAPTURE_RATE_Z sigmas) is a tyre mismatch and is
+  captured into the ratio at once (``calibration.capture_rate``);
+* a smaller one that the stretches corroborate (``corroborated``) restarts the steady filter's follow hold, so the
+  heading follows the rate filter while the stretches refine the ratio;
+* a ratio that moved by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift restarts it too.
+
+A new ratio changes the wheel heading's rate per metre; the rate filter's rate follows at once
+(``offset_filter.shift_rate``).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from . import calibration as _cal
+from . import f_delta as _fdelta
+from . import offset_filter as _offset
+from .packed import computed_once
+
+RECALIBRATION_HOLD = 1e-4
+"""Relative change of the ratio in one calibration update beyond which the steady F-DELTA's follow hold restarts."""
+
+CORROBORATED_RATE_Z = 4.0
+"""The rate filter's rate is corroborated only beyond this many of its sigmas (filter_rate_significance is 2.9; the
+dip errors of highway/hills/105 faked 50-110 µrad/m at 3-4.7 sigmas for 10 km, which the stretches did not share)."""
+CORROBORATED_STRETCH_Z = 1.5
+"""... by stretches whose filtered ratio is beyond this many of its sigmas from the applied ratio (``stretches_rate``),"""
+CORROBORATED_FACTOR = 2.0
+"""... in the same direction, the two rates within this factor of each other."""
+
+
+def corroborated(params, cs, rate_filter, track):
+    """Whether the stretches corroborate the rate filter's drift (bool): the two measure a tyre mismatch independently
+    (the stretches the pulse counts on straight roads, the rate filter the compass against the wheels), and a drift
+    both see, in the same direction and of about the same size, is the wheels'.
+
+    Where the seed is silent.  A mismatch of 0.01-0.08 % drifts the wheels by 60-500 µrad/m: under the large drift
+    (filter_follow_hold_rate) and the show rate's smooth step, and under the stretches' significance for 20 km
+    (independent simulator, highway seed 61, 0.017 % hidden: the rate filter 70-90 µrad/m at 4-6 sigmas, the stretches'
+    unapplied mean 90-160 µrad/m at 1.3-2.8 sigmas; the steady filter lagged 17 deg; docs/tuning.md, stop 53).  Each
+    test alone is weak, both together are not met on any drive of the matrix.  drifting (``offset_filter.drifting``)
+    keeps out rates too small to matter.  cs: the calibration state; track: T (m)."""
+    stretch_rate, stretch_z = _cal.stretches_rate(params, cs, track)
+    beta = rate_filter.beta
+    same_size = (stretch_rate * beta > 0.0) & (CORROBORATED_FACTOR * jnp.abs(stretch_rate) > jnp.abs(beta)) & (
+        jnp.abs(stretch_rate) < CORROBORATED_FACTOR * jnp.abs(beta))
+    rate_sure = beta ** 2 > CORROBORATED_RATE_Z ** 2 * rate_filter.fields().p11
+    return rate_sure & (stretch_z > CORROBORATED_STRETCH_Z) & same_size & _offset.drifting(params, rate_filter)
+
+
+def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady, initialized):
+    """EP 0619873's calibration, then the drift confirmed (the module docstring).  calibration: the calibration state
+    before this sample; odo: ``model._odometer``'s dict; h_c (rad), compass_ok (bool); offset, steady: the rate and
+    steady F-DELTA after this sample's update.  Returns (calibration state, offset, steady, the change of the wheel
+    heading's rate per metre [rad/m], for the Kalman mode's beta)."""
+    robust = config.robust
+    cal_state = _cal.calibration_step(
+        params, calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
+        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
+        robust=robust)
+    if _fdelta.captures_drift(config):
+        # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
+        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
+        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
+        # A smaller one the stretches corroborate: the heading follows the rate filter from here (the hold), and
+        # later recalibrations restart the hold as after a large drift (the rate filter's since_drift).
+        confirmed = computed_once(corroborated(params, cal_state, offset, odo["track"]) & ~capture
+                                  & (initialized > 0.5))
+        steady = _offset.restart_hold(steady, confirmed)
+        offset = _offset.restart_hold(offset, confirmed)
+        cal_state = _cal.capture_rate(params, cal_state, offset.beta, odo["track"], capture)
+    # A new calibration changes the wheel heading's rate per metre; the offset's rate follows at once.
+    rate_change = jnp.zeros_like(odo["track"])
+    if config.calibration and robust:
+        rel_left = cal_state.dpp_left / calibration.dpp_left - 1.0
+        rel_right = cal_state.dpp_right / calibration.dpp_right - 1.0
+        rate_change = (rel_left - rel_right) / odo["track"]
+        offset = _offset.shift_rate(offset, rate_change)
+        # A ratio still moving by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift (a tyre
+        # mismatch, captured) says the wheels drift: the steady filter follows the rate filter while the stretches
+        # refine it.
+        moving = jnp.abs(rel_left - rel_right) > RECALIBRATION_HOLD
+        moving = moving & (offset.since_drift < params.filter_follow_hold_m)
+        steady = _offset.restart_hold(steady, computed_once(moving))
+    return cal_state, offset, steady, rate_change
