@@ -133,8 +133,8 @@ def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[s
             consequence = "the heading comes from the wheels alone and its start is unknown"
             if np.any(fixes > 0.5):
                 consequence += " (the drive has position fixes: --mode kalman starts the heading from them)"
-        return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN, inf or no field); "
-                f"{consequence}"]
+        return [f"{name}: no usable compass: all {n} compass samples are invalid (NaN or infinite, both "
+                f"components exactly 0, or one reading repeated while the wheels turned); {consequence}"]
     cx = np.asarray(drive.inputs.compass_x, dtype=np.float64) - float(params.X0)
     cy = np.asarray(drive.inputs.compass_y, dtype=np.float64) - float(params.Y0)
     mag = np.hypot(cx, cy)

@@ -45,6 +45,15 @@ def test_no_usable_compass(base, tmp_path, capsys):
     assert any("no usable compass" in w and "d.csv" in w and "from the wheels alone" in w for w in warnings), warnings
 
 
+@pytest.mark.parametrize("value, reason", [(np.nan, "NaN or infinite"), (0.0, "both components exactly 0")])
+def test_no_usable_compass_says_why_its_samples_are_invalid(base, tmp_path, capsys, value, reason):
+    """A logger that writes 0 for a missing compass (issue 10: all zero) is told so, not 'no field' (stop 53)."""
+    cols = dict(base[0], compass_x=np.full_like(base[0]["compass_x"], value),
+                compass_y=np.full_like(base[0]["compass_y"], value))
+    warnings, _ = _warnings(cols, dict(base[1]["params"]), tmp_path, capsys)
+    assert any("no usable compass" in w and reason in w for w in warnings), warnings
+
+
 def test_no_usable_compass_in_the_compass_mode_says_there_is_no_heading(base, tmp_path, capsys):
     """Before stop 44 the compass mode was told its heading came 'from the wheels alone'."""
     cols = dict(base[0], compass_x=np.full_like(base[0]["compass_x"], np.nan))
