@@ -115,7 +115,8 @@ def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):
 
 
 STALE_TURN_DEG = 5.0
-"""A compass reading repeated exactly while the wheels turned by more than this (deg, net) is stale (``stale_check``)."""
+"""A compass reading repeated exactly while the wheels turned by more than this (deg, net) is stale
+(``stale_check``)."""
 
 
 class StaleState(NamedTuple):
@@ -148,4 +149,3 @@ def stale_check(state: StaleState, compass_x, compass_y, alpha):
     keep = jnp.isfinite(compass_x) & jnp.isfinite(compass_y)
     new = StaleState(jnp.where(keep, compass_x, state.last_x), jnp.where(keep, compass_y, state.last_y), turn)
     return new, jnp.abs(turn) > deg(STALE_TURN_DEG)
-

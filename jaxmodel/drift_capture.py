@@ -29,9 +29,15 @@ CORROBORATED_RATE_Z = 4.0
 """The rate filter's rate is corroborated only beyond this many of its sigmas (filter_rate_significance is 2.9; the
 dip errors of highway/hills/105 faked 50-110 µrad/m at 3-4.7 sigmas for 10 km, which the stretches did not share)."""
 CORROBORATED_STRETCH_Z = 1.5
-"""... by stretches whose filtered ratio is beyond this many of its sigmas from the applied ratio (``stretches_rate``),"""
+"""... by stretches whose filtered ratio is beyond this many of its sigmas from the applied ratio
+(``stretches_rate``),"""
 CORROBORATED_FACTOR = 2.0
 """... in the same direction, the two rates within this factor of each other."""
+
+
+def _beyond(rate_filter, z):
+    """Whether the rate filter's rate is beyond ``z`` of its sigmas (bool)."""
+    return rate_filter.beta ** 2 > z ** 2 * rate_filter.p11
 
 
 def corroborated(params, cs, rate_filter, track):
@@ -49,8 +55,8 @@ def corroborated(params, cs, rate_filter, track):
     beta = rate_filter.beta
     same_size = (stretch_rate * beta > 0.0) & (CORROBORATED_FACTOR * jnp.abs(stretch_rate) > jnp.abs(beta)) & (
         jnp.abs(stretch_rate) < CORROBORATED_FACTOR * jnp.abs(beta))
-    rate_sure = beta ** 2 > CORROBORATED_RATE_Z ** 2 * rate_filter.fields().p11
-    return rate_sure & (stretch_z > CORROBORATED_STRETCH_Z) & same_size & _offset.drifting(params, rate_filter)
+    return (_beyond(rate_filter, CORROBORATED_RATE_Z) & (stretch_z > CORROBORATED_STRETCH_Z) & same_size
+            & _offset.drifting(params, rate_filter))
 
 
 def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady, initialized):
@@ -65,8 +71,8 @@ def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady,
         robust=robust)
     if _fdelta.captures_drift(config):
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
-        known = offset.beta ** 2 > (_cal.CAPTURE_RATE_Z ** 2) * offset.p11
-        capture = computed_once(_offset.large_drift(params, offset) & known & (initialized > 0.5))
+        capture = computed_once(_offset.large_drift(params, offset) & _beyond(offset, _cal.CAPTURE_RATE_Z)
+                                & (initialized > 0.5))
         # A smaller one the stretches corroborate: the heading follows the rate filter from here (the hold), and
         # later recalibrations restart the hold as after a large drift (the rate filter's since_drift).
         confirmed = computed_once(corroborated(params, cal_state, offset, odo["track"]) & ~capture

@@ -87,7 +87,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                                     with_lost_restart=True)
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
-    # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts the hold.
+    # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts
+    # the hold.
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
                                    calibrated=calibrated)
     f_delta = shown.delta

@@ -36,7 +36,8 @@ def calibrated_rate_params(params, calibrated):
     its offset's sigma near 2.3 deg on a highway and let it follow the compass's errors at every curve
     (highway/mismatch_1.5/106: 1.82 deg against its mismatch-free twin's 0.78).  Drives whose tyres match the file
     are untouched (``calibrated`` 0).  Fraction 0 / 0.3 / 0.5 / 0.7 / 1 on the matrix's tuning seeds: geometric mean
-    0.844 / 0.836 / 0.833 / 0.834 / 0.854 deg (mismatch 2.5 %: 1.02 / 1.00 / 1.01 / 1.06 / 1.29); docs/tuning.md, stop 53.
+    0.844 / 0.836 / 0.833 / 0.834 / 0.854 deg (mismatch 2.5 %: 1.02 / 1.00 / 1.01 / 1.06 / 1.29); docs/tuning.md,
+    stop 53.
     """
     turn_sigma = params.filter_turn_sigma + CALIBRATED_TURN_FRACTION * calibrated * (
         params.filter_steady_turn_sigma - params.filter_turn_sigma)

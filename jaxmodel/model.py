@@ -223,6 +223,7 @@ took each update for a burst at five times the speed)."""
 HOLD_MIN_PULSES = 2.0
 """Unchanged counts are held only where the wheels' recent speed would have counted this many pulses in the sample."""
 
+
 def _decode_counter(count, last, modulus, expected=0.0):
     """Pulse increment of a counter that wraps at ``modulus``: the one within modulus/2 of ``expected`` (pulses; 0:
     in [-modulus/2, modulus/2]).  An unchanged count is no increment (a held counter, not a whole wrap)."""

@@ -175,7 +175,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     dD = d_left - d_right
     # After a standstill the wheels moved within the sample, not over the hold: 25 pulses on one wheel passed as a
     # pivot turn of 18-42 deg (docs/tuning.md, stop 52).
-    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), 0.1)
+    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), step_dt)
     tol = course_tolerance(params, dpp, moved_dt)
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
