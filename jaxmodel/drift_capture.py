@@ -9,6 +9,9 @@ Kalman modes (``f_delta.captures_drift``), confirms a drift of the wheel heading
   heading follows the rate filter while the stretches refine the ratio;
 * a ratio that moved by more than RECALIBRATION_HOLD within filter_follow_hold_m of a large drift restarts it too.
 
+Each completed stretch also measures the rate filter's rate (``measure_rate``): the drift the ratio in force leaves,
+seen in the pulse counts alone, so that the rate filter does not take a compass error for it (docs/tuning.md, stop 54).
+
 A new ratio changes the wheel heading's rate per metre; the rate filter's rate follows at once
 (``offset_filter.shift_rate``).
 """
@@ -20,6 +23,7 @@ import jax.numpy as jnp
 from . import calibration as _cal
 from . import f_delta as _fdelta
 from . import offset_filter as _offset
+from .angles import safe_div as _safe_div
 from .packed import computed_once
 
 RECALIBRATION_HOLD = 1e-4
@@ -59,6 +63,45 @@ def corroborated(params, cs, rate_filter, track):
             & _offset.drifting(params, rate_filter))
 
 
+STRETCH_GATE = 3.0
+"""A stretch whose rate is further than this many sigmas from the rate filter's counts as proportionally less
+(``measure_rate``): a gentle curve the compass did not see biases a stretch by 1e-3."""
+
+
+def stretch_rate(params, before, after, track):
+    """The wheel heading's drift (rad/m) that a stretch completed in this sample says the ratio in force leaves, and
+    its variance ((rad/m)^2): rate = (k - k_s) / T (``calibration.stretches_rate``'s sign), variance
+    (cal_stretch_sigma / T)^2 / min(w, 1), w the stretch's intensity (the compass's straightness and its consistency
+    with the previous stretch; EP 0619873 claims 6-11), found from the filtered ratio's weight (claim 13:
+    W' = W (1 - w / cal_filter_stretches) + w).  before, after: the calibration state before and after this sample.
+    Returns (rate, variance, whether a stretch completed: bool)."""
+    done = after.updates > before.updates
+    w = _safe_div(after.weight - before.weight, 1.0 - before.weight / params.cal_filter_stretches)
+    w = jnp.clip(jnp.where(done, w, 0.0), 1e-12, 1.0)
+    rate = _safe_div(before.ratio - after.prev_k, track)
+    return rate, _safe_div(params.cal_stretch_sigma, track) ** 2 / w, done
+
+
+def measure_rate(rate_filter, rate, variance, ok):
+    """The rate filter's rate measured directly (rad/m, of ``variance``): a Kalman update with h = e_beta, the
+    innovation's variance inflated beyond STRETCH_GATE sigmas.  Where the seed is silent: a straight stretch measures
+    the wheels' drift from the pulse counts alone, the rate filter from the compass against the wheels; each
+    stretch is one independent look at what the ratio in force leaves (docs/tuning.md, stop 54).  ok (bool): a stretch
+    completed.  Returns the rate filter (an OffsetState)."""
+    f = rate_filter.fields()
+    P = _offset._covariance(f)
+    beta_index = _offset.STATES.index("beta")
+    column = P[beta_index]
+    nu = rate - f.beta
+    r = variance * jnp.maximum(1.0, nu ** 2 / (STRETCH_GATE ** 2 * (column[beta_index] + variance)))
+    inv = 1.0 / (column[beta_index] + r)
+    gain = [c * inv for c in column]
+    x = [getattr(f, name) + g * nu for name, g in zip(_offset.STATES, gain)]
+    new_p = {f"p{i}{j}": P[i][j] - gain[i] * column[j] for i, j in _offset._UPPER}
+    new = _offset.OffsetState.pack(f._replace(**dict(zip(_offset.STATES, x)), **new_p))
+    return _offset.OffsetState(jnp.where(computed_once(ok), new.vector, rate_filter.vector))
+
+
 def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady, initialized):
     """EP 0619873's calibration, then the drift confirmed (the module docstring).  calibration: the calibration state
     before this sample; odo: ``model._odometer``'s dict; h_c (rad), compass_ok (bool); offset, steady: the rate and
@@ -70,6 +113,8 @@ def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady,
         compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
         robust=robust)
     if _fdelta.captures_drift(config):
+        # A completed stretch measures the drift the ratio in force leaves, independently of the compass.
+        offset = measure_rate(offset, *stretch_rate(params, calibration, cal_state, odo["track"]))
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
         capture = computed_once(_offset.large_drift(params, offset) & _beyond(offset, _cal.CAPTURE_RATE_Z)
                                 & (initialized > 0.5))

@@ -69,3 +69,75 @@ def test_a_corroborated_drift_restarts_the_steady_filters_hold_and_the_rate_filt
         assert float(new_rate.fields().since_drift) == (0.0 if agree else float(rate.fields().since_drift))
         assert float(new_cal.fields().ratio) == float(cs.fields().ratio) and float(rate_change) == 0.0
     assert np.isfinite(float(new_rate.beta))
+
+
+def _correlated_rate_filter(params):
+    """A rate filter whose offset and rate are correlated (as after kilometres of compass), rate 60 µrad/m."""
+    f = of.init_offset_state(params).fields()
+    return of.OffsetState.pack(f._replace(beta=jnp.asarray(60e-6), p00=jnp.asarray(4e-4), p01=jnp.asarray(-2e-7),
+                                          p11=jnp.asarray((50e-6) ** 2)))
+
+
+def test_a_stretch_measures_the_rate_as_a_kalman_update():
+    """measure_rate is the scalar Kalman update with h = e_beta: the state moves by P h / (h P h + r) times the
+    innovation, the covariance loses the gain's outer product; nothing moves without a stretch."""
+    params = jm.make_params()
+    fs = _correlated_rate_filter(params)
+    f = fs.fields()
+    P = np.array([[float(getattr(f, f"p{min(i, j)}{max(i, j)}")) for j in range(len(of.STATES))]
+                  for i in range(len(of.STATES))])
+    x = np.array([float(getattr(f, s)) for s in of.STATES])
+    y, r = -20e-6, (90e-6) ** 2
+    gain = P[:, 1] / (P[1, 1] + r)
+    want_x = x + gain * (y - x[1])
+    want_P = P - np.outer(gain, P[1])
+    got = dc.measure_rate(fs, jnp.asarray(y), jnp.asarray(r), jnp.asarray(True)).fields()
+    np.testing.assert_allclose([float(getattr(got, s)) for s in of.STATES], want_x, rtol=1e-12, atol=1e-18)
+    for i in range(len(of.STATES)):
+        for j in range(i, len(of.STATES)):
+            assert float(getattr(got, f"p{i}{j}")) == pytest.approx(want_P[i, j], rel=1e-9, abs=1e-24)
+    assert float(got.delta) > float(f.delta)  # the offset moves too: negatively correlated, the rate fell
+    unchanged = dc.measure_rate(fs, jnp.asarray(y), jnp.asarray(r), jnp.asarray(False))
+    np.testing.assert_array_equal(np.asarray(unchanged.vector), np.asarray(fs.vector))
+
+
+def test_a_stretch_far_from_the_rate_counts_less():
+    """Beyond STRETCH_GATE sigmas of the innovation the stretch's variance grows with it (a curve the compass did
+    not see): the rate moves less than the plain update would move it, and in the same direction."""
+    params = jm.make_params()
+    fs = _correlated_rate_filter(params)
+    r = (90e-6) ** 2
+    s = float(fs.fields().p11) + r
+    far = 60e-6 - 10.0 * np.sqrt(s)
+    plain = 60e-6 + float(fs.fields().p11) / s * (far - 60e-6)
+    got = float(dc.measure_rate(fs, jnp.asarray(far), jnp.asarray(r), jnp.asarray(True)).beta)
+    assert plain < got < 60e-6
+
+
+def test_stretch_rate_is_the_gap_to_the_ratio_in_force_with_the_stretchs_weight():
+    """stretch_rate: (k - k_s) / T with the variance (cal_stretch_sigma / T)^2 / w, w the stretch's intensity found from
+    the filtered ratio's weight; only where a stretch completed."""
+    params = jm.make_params()
+    before = _stretches(params, 0.0, 8e-5)
+    b = before.fields()
+    k_s, w = float(b.ratio) + 3e-4, 0.4
+    weight = float(b.weight) * (1.0 - w / float(params.cal_filter_stretches)) + w
+    after = cal.CalibrationState.pack(b._replace(updates=b.updates + 1.0, prev_k=jnp.asarray(k_s),
+                                                 weight=jnp.asarray(weight)))
+    rate, variance, done = dc.stretch_rate(params, before, after, jnp.asarray(TRACK))
+    assert bool(done)
+    assert float(rate) == pytest.approx(-3e-4 / TRACK, rel=1e-9)
+    assert float(variance) == pytest.approx((float(params.cal_stretch_sigma) / TRACK) ** 2 / w, rel=1e-9)
+    assert not bool(dc.stretch_rate(params, before, before, jnp.asarray(TRACK))[2])
+
+
+@pytest.mark.slow
+def test_the_stretches_keep_a_found_mismatchs_rate_from_the_compass():
+    """Held-out highway/mismatch_2.5/111: after a 4-deg disturbance the rate filter had learned a rate from it and the
+    steady filter rejected a clean compass for 2.2 km (2.15 deg RMSE).  Each completed stretch now measures the rate
+    (drift_capture.measure_rate, docs/tuning.md stop 54): 0.87 deg."""
+    from identification import scenarios as sc
+    from matrix_drives import rmse_after_first_minute, run_drive
+
+    drive = sc.make_drive("highway", "mismatch_2.5", 111)
+    assert rmse_after_first_minute(run_drive(drive), drive) < 1.3
