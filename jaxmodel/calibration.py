@@ -124,9 +124,9 @@ def steady_bound(params, pulses):
     in a row (independent simulator, urban seed 62: one stretch in 6 km, the ratio stuck 6e-5 off; 9 with this).
     The larger of the two, not their quadrature sum: the matrix's 670-1430 pulses per window mostly keep
     cal_steady_bound (3/N at most 0.0045), where the sum (0.0036-0.0054) let curve entries into hills drives'
-    stretches (highway/hills/105 1.17 -> 2.62 deg).  Hidden tyre mismatch, independent simulator (92 drives): the ratio's error over the last
-    two thirds of a drive 5.0e-5 -> 3.8e-5 (geometric mean), heading unchanged (1.928 -> 1.925 deg); fresh seeds
-    66-69 1.911 -> 1.889 deg; docs/tuning.md, stop 54.
+    stretches (highway/hills/105 1.17 -> 2.62 deg).  Hidden tyre mismatch, independent simulator (92 drives): the
+    ratio's error over the last two thirds of a drive 5.0e-5 -> 3.8e-5 (geometric mean), heading unchanged (1.928 ->
+    1.925 deg); fresh seeds 66-69 1.911 -> 1.889 deg; docs/tuning.md, stop 54.
     """
     return jnp.maximum(params.cal_steady_bound, QUANTIZATION_Z * safe_div(1.0, pulses))
 
