@@ -84,10 +84,11 @@ def test_reacquisition_ends_a_lock_out():
     compass, since the rate filter's rate explains the disagreement (``drifting``); a runaway past
     filter_reacquire_large_deg restarts it too (``lost``), so "never" switches both off.  Seed 108 is a tuning-side seed
     (not among the evaluation seeds).  Measured with the stop-20 constants: 0.88 deg, never 22.7 deg; with the tilt
-    sigma of 3 deg (stop 25): 0.83 deg, never 12.3 deg."""
+    sigma of 3 deg (stop 25): 0.83 deg, never 12.3 deg; since the stretches measure the rate filter's rate (stop 54,
+    drift_capture.measure_rate) the rate runs away less far: 0.87 deg, never 4.0 deg."""
     drive = sc.make_drive("highway", "mismatch_2.5", 108, duration_s=450.0)
     rmse = _default_and(drive, "never", {"filter_reacquire_m": 1e12, "filter_reacquire_large_deg": 1e9})
-    assert rmse["never"] > 8.0, rmse
+    assert rmse["never"] > max(3.0, 3.0 * rmse["default"]), rmse
     assert rmse["default"] < 5.0, rmse
 
 
