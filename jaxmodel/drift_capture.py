@@ -88,17 +88,7 @@ def measure_rate(rate_filter, rate, variance, ok):
     the wheels' drift from the pulse counts alone, the rate filter from the compass against the wheels; each
     stretch is one independent look at what the ratio in force leaves (docs/tuning.md, stop 54).  ok (bool): a stretch
     completed.  Returns the rate filter (an OffsetState)."""
-    f = rate_filter.fields()
-    P = _offset._covariance(f)
-    beta_index = _offset.STATES.index("beta")
-    column = P[beta_index]
-    nu = rate - f.beta
-    r = variance * jnp.maximum(1.0, nu ** 2 / (STRETCH_GATE ** 2 * (column[beta_index] + variance)))
-    inv = 1.0 / (column[beta_index] + r)
-    gain = [c * inv for c in column]
-    x = [getattr(f, name) + g * nu for name, g in zip(_offset.STATES, gain)]
-    new_p = {f"p{i}{j}": P[i][j] - gain[i] * column[j] for i, j in _offset._UPPER}
-    new = _offset.OffsetState.pack(f._replace(**dict(zip(_offset.STATES, x)), **new_p))
+    new = _offset.measure_state(rate_filter, "beta", rate, variance, STRETCH_GATE)
     return _offset.OffsetState(jnp.where(computed_once(ok), new.vector, rate_filter.vector))
 
 

@@ -99,6 +99,7 @@ import jax.numpy as jnp
 
 from .angles import safe_div, sin_polynomial, wrap
 from .packed import computed_once, packed_state
+from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 from .params import deg
 
 UNINITIALIZED_BOUND = jnp.pi
@@ -108,7 +109,7 @@ UNINITIALIZED_BOUND = jnp.pi
 STATES = ("delta", "beta", "c", "k", "g")
 """The filter's states, in the order of its covariance."""
 _N = len(STATES)
-_UPPER = tuple((i, j) for i in range(_N) for j in range(i, _N))
+_UPPER = upper_indices(_N)
 
 
 class OffsetFields(NamedTuple):
@@ -152,9 +153,8 @@ class OffsetFields(NamedTuple):
     lost_m: jnp.ndarray
 
 
-# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (_covariance, _dot): inside the
-# vmapped scan XLA:CPU runs each tiny matmul as its own kernel.  A dense (5, 5) form on broadcasts was no faster
-# (docs/tuning.md, "Throughput, stop 22").
+# One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (unrolled.py): inside the vmapped scan
+# XLA:CPU runs each tiny matmul as its own kernel.
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 
 
@@ -174,35 +174,6 @@ def _added(fs, one_hot, amount):
     return OffsetState(fs.vector + jnp.asarray(amount)[..., None] * one_hot)
 
 
-def _covariance(f):
-    """P as a symmetric nested list of scalars."""
-    P = [[None] * _N for _ in range(_N)]
-    for i, j in _UPPER:
-        P[i][j] = P[j][i] = getattr(f, f"p{i}{j}")
-    return P
-
-
-def _upper(P):
-    """The p_ij fields of a nested-list covariance."""
-    return {f"p{i}{j}": P[i][j] for i, j in _UPPER}
-
-
-def _is_constant(v, value):
-    """Whether v is the Python number ``value`` (a structural 0 or 1, known at trace time)."""
-    return isinstance(v, (int, float)) and v == value
-
-
-def _scaled(v, factor):
-    """v times factor, skipping a factor of exactly 1 (one operation less per step)."""
-    return v if _is_constant(factor, 1) else v * factor
-
-
-def _dot(row, column):
-    """sum row[m] column[m], skipping the structural zeros and ones (Python numbers) of ``row``."""
-    terms = [_scaled(c, r) for r, c in zip(row, column) if not _is_constant(r, 0)]
-    return sum(terms[1:], terms[0])
-
-
 def init_offset_state(params):
     z = jnp.zeros((), jnp.float64)
     P = [[z] * _N for _ in range(_N)]
@@ -211,7 +182,7 @@ def init_offset_state(params):
     P[2][2] = deg(params.filter_gm_sigma_deg) ** 2
     P[3][3] = jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2
     P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
-    return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **_upper(P), disturbance=z,
+    return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **upper(P), disturbance=z,
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
                                          # unsteady until LOST_STEADY_M of compass samples said otherwise
                                          level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z))
@@ -260,14 +231,14 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
          deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
          params.filter_scale_psd * jnp.abs(alpha),
          deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g))
-    P = _covariance(f)
+    P = covariance(f, _N)
     r = [P[0][m] + a * P[1][m] + alpha * P[3][m] for m in range(_N)]  # row 0 of F P
     new_P = {}
     for i, j in _UPPER:
         if i == 0:
-            v = r[0] + a * r[1] + alpha * r[3] if j == 0 else _scaled(r[j], d[j])
+            v = r[0] + a * r[1] + alpha * r[3] if j == 0 else scaled(r[j], d[j])
         else:
-            v = _scaled(_scaled(P[i][j], d[i]), d[j])
+            v = scaled(scaled(P[i][j], d[i]), d[j])
         new_P[f"p{i}{j}"] = v + Q[i] if i == j else v
     delta, beta, c, k, g = f.delta + a * f.beta + alpha * f.k, phi_b * f.beta, phi * f.c, f.k, phi_g * f.g
     return OffsetState.pack(OffsetFields(
@@ -326,10 +297,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     drift_significant = drifting if drift_significant is None else drift_significant
     h = [1, 0, 1, 0, tilt]
     x = [f.delta, f.beta, f.c, f.k, f.g]
-    nu = wrap(delta_meas - _dot(h, x))
-    P = _covariance(f)
-    ph = [_dot(h, P[i]) for i in range(_N)]  # P h
-    p_hh = _dot(h, ph)
+    nu = wrap(delta_meas - dot(h, x))
+    P = covariance(f, _N)
+    ph, p_hh = projected(P, h)
     # Running agreement of DELTA with the wheels over filter_check_m metres.
     keep = jnp.exp(-d_t / params.filter_check_m)
     disturbance = jnp.where(ok, keep * f.disturbance + (1.0 - keep) * nu, f.disturbance)
@@ -361,9 +331,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     steadily = wander_rms < steady_rad
     hardening = jnp.where(drifting | is_lost, 0.0, (f.rejected_m / params.filter_reject_harden_m) ** 2)
     r = sigma ** 2 * per_measurement / jnp.maximum(factor, 1e-6) * (1.0 + z2 / gate2) * (1.0 + hardening)
-    r = r * jnp.maximum(1.0, nu ** 2 / (gate2 * (p_hh + r)))
-    inv = 1.0 / (p_hh + r)
-    gain = [v * inv for v in ph]
+    new_x, new_P, gain = gated_scalar_update(x, P, ph, p_hh, nu, r, gate2)
     weight = 1.0 / (1.0 + z2 / gate2)
     rejected_m = jnp.where(weight < 0.5, f.rejected_m + d_t, 0.0)
     # Counted from a jump beyond filter_reacquire_large_deg (the level restarts there), else from when the running
@@ -378,11 +346,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, unsteady_after)
     lost_m = jnp.where((weight < 0.5) | standing_lost,
                        f.lost_m + jnp.where(beyond, jnp.minimum(d_lost, lost_after / LOST_LOOKS), 0.0), 0.0)
-    new_x = [v + gi * nu for v, gi in zip(x, gain)]
-    new_P = {f"p{i}{j}": P[i][j] - gain[i] * ph[j] for i, j in _UPPER}
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **new_P,
-        disturbance=disturbance - _dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
+        disturbance=disturbance - dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
@@ -415,6 +381,19 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     if with_lost_restart:
         return out, weight, reacquire & ok & (is_lost | standing_lost)
     return out, weight
+
+
+def measure_state(fs, name, value, variance, gate):
+    """``fs`` (an OffsetState) updated by a direct measurement of its state ``name`` (one of STATES): ``value`` of
+    ``variance``, h the unit row of that state, the variance inflated beyond ``gate`` sigmas of the innovation
+    (``unrolled.gated_scalar_update``).  The stretches' rate (``drift_capture.measure_rate``) measures beta so."""
+    f = fs.fields()
+    h = [1 if state == name else 0 for state in STATES]
+    x = [getattr(f, state) for state in STATES]
+    P = covariance(f, _N)
+    ph, p_hh = projected(P, h)
+    new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, value - getattr(f, name), variance, gate ** 2)
+    return OffsetState.pack(f._replace(**dict(zip(STATES, new_x)), **new_p))
 
 
 def tilt_gain(params, heading):
