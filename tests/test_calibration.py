@@ -209,12 +209,13 @@ def test_steady_bound_allows_one_pulse_of_quantization():
     assert math.isclose(float(cal.steady_bound(p, 420.0)), cal.QUANTIZATION_Z / 420.0, rel_tol=1e-12)
     assert float(cal.steady_bound(p, 5000.0)) == float(p.cal_steady_bound)
     assert float(cal.steady_bound(p, 0.0)) == float(p.cal_steady_bound)  # no window yet: finite
+    assert float(cal.steady_bound(p, -420.0)) == float(cal.steady_bound(p, 420.0))  # reversing
 
 
-def _coarse_straight_stretches(monkeypatch, quantization_z):
+def _coarse_straight_stretches(monkeypatch, quantization_z, direction=1.0):
     """Stretches completed on 6 km of straight road with 44 pulses per revolution of a 0.33-m wheel (dpp 4.7 cm,
     420 pulses per 20-m window) and a 1 % tyre mismatch; the counts are the wheels' distances floored to whole
-    pulses from random phases."""
+    pulses from random phases.  direction -1: the same road in reverse (every count negative)."""
     from jaxmodel import calibration as cal
 
     monkeypatch.setattr(cal, "QUANTIZATION_Z", quantization_z)
@@ -230,7 +231,7 @@ def _coarse_straight_stretches(monkeypatch, quantization_z):
         p, cs, pulses_left=nl, pulses_right=nr, d_t=d, compass_heading=jnp.asarray(0.3), compass_ok=jnp.asarray(True),
         odometer_ok=jnp.asarray(True), enabled=True, robust=True))
     for nl, nr, d in zip(np.diff(counts_left), np.diff(counts_right), np.diff(s)):
-        cs = step_fn(cs, jnp.asarray(nl), jnp.asarray(nr), jnp.asarray(d))
+        cs = step_fn(cs, jnp.asarray(direction * nl), jnp.asarray(direction * nr), jnp.asarray(d))
     return float(cs.updates), float(cs.mean)
 
 
@@ -240,4 +241,13 @@ def test_coarse_pulses_complete_straight_stretches(monkeypatch):
     without, _ = _coarse_straight_stretches(monkeypatch, 0.0)
     with_, mean = _coarse_straight_stretches(monkeypatch, 3.0)
     assert with_ >= 25 and without <= 0.7 * with_, (with_, without)
+    assert abs(mean - 1.01) < 2e-4, mean
+
+
+def test_coarse_pulses_complete_stretches_reversing(monkeypatch):
+    """The quantization's allowance is the count's magnitude's: reversing down the same straight road (both
+    counts negative) completes as many stretches as driving it forwards."""
+    forwards, _ = _coarse_straight_stretches(monkeypatch, 3.0)
+    reversing, mean = _coarse_straight_stretches(monkeypatch, 3.0, direction=-1.0)
+    assert reversing >= 0.9 * forwards, (reversing, forwards)
     assert abs(mean - 1.01) < 2e-4, mean
