@@ -264,6 +264,20 @@ def test_an_early_restart_needs_a_significant_drift(significant, restarted):
     assert np.degrees(float(new.delta)) == pytest.approx(12.0 if restarted else 0.0, abs=0.5)
 
 
+def test_an_accepted_sample_releases_the_rejection_count_in_proportion():
+    """One accepted sample of 2.5 m (a second at highway speed) takes REJECTION_RELEASE x 2.5 m off a rejection of
+    2 km; the count, and with it the hardening, goes on.  A clean compass for 20 m ends it."""
+    params = jm.make_params()
+    f = of.init_offset_state(params).fields()
+    fs = of.OffsetState.pack(f._replace(rejected_m=jnp.asarray(2000.0), p00=jnp.asarray(deg(0.5) ** 2)))
+    agreeing = jnp.asarray(0.0)  # the compass agrees with F-DELTA: accepted
+    for metres, expected in ((2.5, 2000.0 - of.REJECTION_RELEASE * 2.5), (20.0, 0.0)):
+        new, weight = of.update(params, fs, agreeing, jnp.asarray(deg(3.0)), metres, 1.0, jnp.asarray(True),
+                                jnp.asarray(False), 0.0)
+        assert float(weight) > 0.5
+        assert float(new.rejected_m) == pytest.approx(expected)
+
+
 _YOUNG_REJECT_M = of.START_REJECT_FRACTION * 1000.0  # filter_reacquire_m's default
 
 
