@@ -110,9 +110,10 @@ def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
 def test_a_rejection_is_released_not_reset_by_one_accepted_sample(monkeypatch):
     """A hard iron shifted on a highway: no turns to learn it from (compass_shift), the compass 9-15 deg off.  While
     the filter rejected it, its variance grew until samples 8 deg off passed the gate for a second; each such sample
-    reset the rejection count and with it the hardening, and the compass crept in, then filter_reacquire_step_m
-    (5 km) restarted the filter from it.  Released (offset_filter.REJECTION_RELEASE) with the step at 15 km: tuning
-    seed 103, measured 1.86 deg; reset as before, with the 5-km step, 6.34 deg (stop 55)."""
+    reset the rejection count and with it the hardening, and the compass crept in (on mixed/hard_iron_shift/102 the
+    5-km step restart, filter_reacquire_step_m, took the shifted compass instead).  Released
+    (offset_filter.REJECTION_RELEASE) with the step at 15 km: tuning seed 103, measured 1.86 deg; reset as before,
+    with the 5-km step, 6.34 deg (stop 55)."""
     from jaxmodel import offset_filter
 
     drive = sc.make_drive("highway", "hard_iron_shift", 103)
@@ -143,10 +144,10 @@ def test_a_rate_learned_from_a_shifted_hard_iron_does_not_restart_the_filter_ear
 def test_a_shifted_hard_iron_is_hardened_against_within_hundreds_of_metres():
     """The stop-26 harden distance (filter_reject_harden_m 699 -> 300 m, chosen on the tuning seeds 101-103): after
     the shift the compass is 5-15 deg off, and with 699 m its soft-gated samples pull F-DELTA.  Measured on
-    mixed/hard_iron_shift/101 (tuning-side): 1.74 deg, 2.74 deg with 699 m; since a rejection is released, not reset,
-    by an accepted sample (stop 55, offset_filter.REJECTION_RELEASE): 0.52 / 1.25 deg.  (The test drove urban/103 until
-    stop 30, 1.15 against 2.13 deg; since the steady filter no longer takes a significant rate into its state, 1.28 /
-    1.80.)"""
+    mixed/hard_iron_shift/101 (tuning-side): 1.74 deg, 2.74 deg with 699 m; since a rejection is released, not
+    reset, by an accepted sample (stop 55, offset_filter.REJECTION_RELEASE): 0.52 / 1.25 deg.  (The test drove
+    urban/103 until stop 30, 1.15 against 2.13 deg; since the steady filter no longer takes a significant rate into
+    its state, 1.28 / 1.80.)"""
     drive = sc.make_drive("mixed", "hard_iron_shift", 101)
     # The heading filter's own defence: with the shift learner (stop 36) 0.61 / 0.98 deg.
     _assert_default_beats(drive, "harden 699 m", {"filter_reject_harden_m": 699.1}, 1.0, 0.6, compass_shift=False)
