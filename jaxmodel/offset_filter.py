@@ -99,8 +99,8 @@ import jax.numpy as jnp
 
 from .angles import safe_div, sin_polynomial, wrap
 from .packed import computed_once, packed_state
-from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 from .params import deg
+from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 
 UNINITIALIZED_BOUND = jnp.pi
 """heading_bound (rad) before any absolute heading started the estimate: nothing supports it."""

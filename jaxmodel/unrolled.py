@@ -30,19 +30,19 @@ def upper(P):
     return {f"p{i}{j}": P[i][j] for i, j in upper_indices(len(P))}
 
 
-def is_constant(v, value):
+def _is_constant(v, value):
     """Whether v is the Python number ``value`` (a structural 0 or 1, known at trace time)."""
     return isinstance(v, (int, float)) and v == value
 
 
 def scaled(v, factor):
     """v times factor, skipping a factor of exactly 1 (one operation less per step)."""
-    return v if is_constant(factor, 1) else v * factor
+    return v if _is_constant(factor, 1) else v * factor
 
 
 def dot(row, column):
     """sum row[m] column[m], skipping the structural zeros and ones (Python numbers) of ``row``."""
-    terms = [scaled(c, r) for r, c in zip(row, column) if not is_constant(r, 0)]
+    terms = [scaled(c, r) for r, c in zip(row, column) if not _is_constant(r, 0)]
     return sum(terms[1:], terms[0])
 
 
