@@ -60,12 +60,14 @@ def _free_compiled_programs():
     gc.collect()
 
 
-HEAVY_FILES_FIRST = ("test_scenarios.py", "test_fleet.py", "test_identify_fixes.py", "test_fmu.py", "test_model.py",
-                     "test_kalman.py", "test_identify.py", "test_identify_recovery.py", "test_demo.py",
-                     "test_identify_from_zero.py", "test_hard_iron.py", "test_fmu_native.py", "test_fmu_cosim.py")
-"""Files that take two to six minutes each (``--durations``, stop 46), run first.  xdist's ``--dist loadfile`` hands
-the files out in the order collected, one at a time as a worker frees up: in alphabetical order the long files came
-last and one worker ran them alone while the other sat idle.  test_fmu.py comes before the two other FMU files so
+HEAVY_FILES_FIRST = ("test_fleet.py", "test_scenarios.py", "test_kalman.py", "test_model.py", "test_fmu.py",
+                     "test_calibration.py", "test_identify.py", "test_identify_fixes.py", "test_identify_from_zero.py",
+                     "test_fmu_native.py", "test_estimate_cli.py", "test_identify_recovery.py", "test_importers.py",
+                     "test_demo.py", "test_hard_iron.py", "test_shifted_hard_iron.py", "test_fmu_cosim.py")
+"""Files that take one and a half to eight minutes each, longest first (``--durations=0`` summed per file, stop 56:
+test_fleet.py 465 s, test_scenarios.py 262 s before test_shifted_hard_iron.py left it, test_kalman.py 253 s), run
+first.  xdist's ``--dist loadfile`` hands the files out in the order collected, one at a time as a worker frees up: in
+alphabetical order the long files came last and one worker ran them alone while the other sat idle.  test_fmu.py comes before the two other FMU files so
 that the FMUs it builds for the run are there when they ask (``test_fmu.built_fmus``)."""
 
 

@@ -33,3 +33,23 @@ def rmse(err_deg):
 def rmse_after_first_minute(out, drive):
     """Heading RMSE (deg) of ``out`` after the first minute, as the matrix scores it."""
     return rmse(after_first_minute(heading_error_deg(out, drive), drive))
+
+
+def default_rmse_after_first_minute(drive, overrides=None, **config):
+    """Heading RMSE (deg) of the default estimator (``config``: Config fields) after the first minute, as the matrix
+    scores it."""
+    return rmse_after_first_minute(run_drive(drive, overrides, **config), drive)
+
+
+def default_and(drive, name, overrides, **config):
+    """RMSE after the first minute of the default and of the default with ``overrides`` (called ``name``)."""
+    return {"default": default_rmse_after_first_minute(drive, **config),
+            name: default_rmse_after_first_minute(drive, overrides, **config)}
+
+
+def assert_default_beats(drive, name, overrides, without_above, fraction, **config):
+    """The drive is bad without the change (``overrides`` RMSE above ``without_above`` deg) and the default is below
+    ``fraction`` of that."""
+    rmses = default_and(drive, name, overrides, **config)
+    assert rmses[name] > without_above, rmses
+    assert rmses["default"] < fraction * rmses[name], rmses
