@@ -372,6 +372,53 @@ def _learns_soft_iron(config):
     return config.soft_iron and config.robust and config.mode != "compass"
 
 
+def _learn_soft_iron(params, state, config, fd, compass_less_wheels, harmonics, alpha, d_t, b_m, b_e, compass_ok,
+                     initialized, initializing, hard_iron_restart):
+    """The soft iron's deviation learned from the wheels' turns (jaxmodel/soft_iron.py) and from B_E per heading
+    (jaxmodel/soft_iron_field.py), after F-DELTA (``fd``, the robust F-DELTA's dict).  ``compass_less_wheels``
+    (rad): the compass heading with the field's deviation taken out, less the wheel heading.  Returns (soft_iron,
+    soft_field)."""
+    # Only where the filter took the compass as clean, and only from the turns of an identified vehicle: with
+    # the scale state on (an unidentified one) every turn is ~10 % wrong, and a grid's turns at few headings
+    # put that into (p, q) too (urban/baseline/201 with nominal parameters: 1.77 -> 2.14 deg).
+    clean = (compass_ok & (fd["clean_weight"] > 0.5) & (initialized > 0.5) & ~initializing & ~fd["map_used"]
+             & (params.filter_scale_sigma0 <= 0.0))
+    soft_iron = _soft.update(state.soft_iron, wrap(compass_less_wheels), harmonics, alpha, d_t, clean,
+                             deg(params.filter_compass_sigma_deg) / fd["sigma"])
+    # The sums start again with B_E per heading (a hard-iron or a lost filter's restart empties its bins) and
+    # when the offsets shift.
+    restart = hard_iron_restart | fd["field_restart"]
+    if _fdelta.learns_shift(config):
+        restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
+    soft_field = _sfield.update(state.soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
+    return soft_iron, soft_field
+
+
+def _dead_reckoned(state, heading, distance):
+    """Position (m; x east, y north, heading from north) moved ``distance`` (m) at the mid-sample heading."""
+    mid = wrap(state.heading + 0.5 * wrap(heading - state.heading))
+    mid = jnp.where(state.started > 0.5, mid, heading)
+    return state.x + distance * jnp.sin(mid), state.y + distance * jnp.cos(mid)
+
+
+def _heading_bound(params, config, fd, kalman_state, wheel_heading, h_c, e_w, e_c, initialized):
+    """The heading's error bound (rad) in ``config.mode``: the robust F-DELTA's (offset_filter.bound) or FIG. 8's
+    (SDD, E_W, E_C), the Kalman filter's own, and for the single-sensor modes the fused bound plus their distance
+    from the fused heading."""
+    if config.robust:
+        bound = _offset.bound(params, fd["shown"], initialized)
+    else:
+        bound = _hf.heading_bound(fd["sdd"], e_w, e_c)
+    if config.mode == "kalman":
+        bound = _kalman.bound(params, kalman_state, initialized)
+    elif config.mode in ("odometer", "compass"):
+        # The single-sensor modes' heading is the fused one less their distance from it (triangle inequality): the
+        # wheels after an unknown tyre mismatch, 150 deg off, had the fused heading's reliability (stop 48).
+        single = wheel_heading if config.mode == "odometer" else h_c
+        bound = jnp.minimum(bound + jnp.abs(wrap(single - fd["complementary"])), _offset.UNINITIALIZED_BOUND)
+    return bound
+
+
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
     """Process one sample; returns (new state, Outputs).  See the module docstring for the order.
 
@@ -439,23 +486,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         fd = _fdelta.seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok,
                                   wheel_heading, initialized, initializing)
 
-    soft_iron = state.soft_iron
+    soft_iron, soft_field = state.soft_iron, state.soft_field
     if _learns_soft_iron(config):
-        # Only where the filter took the compass as clean, and only from the turns of an identified vehicle: with
-        # the scale state on (an unidentified one) every turn is ~10 % wrong, and a grid's turns at few headings
-        # put that into (p, q) too (urban/baseline/201 with nominal parameters: 1.77 -> 2.14 deg).
-        clean = (compass_ok & (fd["clean_weight"] > 0.5) & (initialized > 0.5) & ~initializing & ~fd["map_used"]
-                 & (params.filter_scale_sigma0 <= 0.0))
-        soft_iron = _soft.update(soft_iron, wrap(h_c_read - wheel_heading), harmonics, alpha, d_t, clean,
-                                 deg(params.filter_compass_sigma_deg) / fd["sigma"])
-    soft_field = state.soft_field
-    if _learns_soft_iron(config):
-        # The sums start again with B_E per heading (a hard-iron or a lost filter's restart empties its bins) and
-        # when the offsets shift.
-        restart = hard_iron_restart | fd["field_restart"]
-        if _fdelta.learns_shift(config):
-            restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
-        soft_field = _sfield.update(soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
+        soft_iron, soft_field = _learn_soft_iron(params, state, config, fd, h_c_read - wheel_heading, harmonics, alpha,
+                                                 d_t, b_m, b_e, compass_ok, initialized, initializing,
+                                                 hard_iron_restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
@@ -491,23 +526,11 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                                            initializing | (initialized < 0.5), dt_moved=odo["dt_counts"])
         heading = wrap(heading + epsilon)
 
-    # Dead-reckoned position with the mid-sample heading (x east, y north; heading from north).
     if config.mode == "kalman":
         x, y = kalman_x, kalman_y
     else:
-        mid = wrap(state.heading + 0.5 * wrap(heading - state.heading))
-        mid = jnp.where(state.started > 0.5, mid, heading)
-        x = state.x + odo["AD"] * jnp.sin(mid)
-        y = state.y + odo["AD"] * jnp.cos(mid)
-
-    bound = _offset.bound(params, fd["shown"], initialized) if robust else _hf.heading_bound(fd["sdd"], e_w, e_c)
-    if config.mode == "kalman":
-        bound = _kalman.bound(params, kalman_state, initialized)
-    elif config.mode in ("odometer", "compass"):
-        # The single-sensor modes' heading is the fused one less their distance from it (triangle inequality): the
-        # wheels after an unknown tyre mismatch, 150 deg off, had the fused heading's reliability (stop 48).
-        single = wheel_heading if config.mode == "odometer" else h_c
-        bound = jnp.minimum(bound + jnp.abs(wrap(single - fd["complementary"])), _offset.UNINITIALIZED_BOUND)
+        x, y = _dead_reckoned(state, heading, odo["AD"])
+    bound = _heading_bound(params, config, fd, kalman_state, wheel_heading, h_c, e_w, e_c, initialized)
     # Before the heading is initialized the bound is UNINITIALIZED_BOUND (180 deg): the reliability is then its
     # smallest, 1 / (1 + 180 / reliability_scale_deg), inside SPEC §8's (0, 1] (exactly 0 before stop 44).
     reliability = _hf.reliability(params, bound)
