@@ -67,8 +67,9 @@ HEAVY_FILES_FIRST = ("test_fleet.py", "test_scenarios.py", "test_kalman.py", "te
 """Files that take one and a half to eight minutes each, longest first (``--durations=0`` summed per file, stop 56:
 test_fleet.py 465 s, test_scenarios.py 262 s before test_shifted_hard_iron.py left it, test_kalman.py 253 s), run
 first.  xdist's ``--dist loadfile`` hands the files out in the order collected, one at a time as a worker frees up: in
-alphabetical order the long files came last and one worker ran them alone while the other sat idle.  test_fmu.py comes before the two other FMU files so
-that the FMUs it builds for the run are there when they ask (``test_fmu.built_fmus``)."""
+alphabetical order the long files came last and one worker ran them alone while the other sat idle.  test_fmu.py comes
+before the two other FMU files so that the FMUs it builds for the run are there when they ask
+(``test_fmu.built_fmus``)."""
 
 
 def pytest_collection_modifyitems(config, items):

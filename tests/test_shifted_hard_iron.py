@@ -9,11 +9,15 @@ import pytest
 import jaxmodel as jm
 from identification import scenarios as sc
 from identification.drive_log import drive_from_columns
-from matrix_drives import after_first_minute as _after_first_minute
-from matrix_drives import assert_default_beats, default_rmse_after_first_minute
-from matrix_drives import heading_error_deg as _err_deg
-from matrix_drives import rmse as _rmse
-from matrix_drives import run_drive as _run
+from matrix_drives import assert_default_beats, default_rmse_after_first_minute, rmse_after_first_minute
+
+
+def _final_state_and_outputs(drive):
+    """The default estimator over the whole drive, unpadded: (final State, Outputs); the tests read the shift
+    learner's offsets from the final state."""
+    inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source=drive.name).inputs)
+    params = jm.make_params(drive.params)
+    return jm.run_from(params, jm.init_state(params), inputs, jm.Config())
 
 
 @pytest.mark.slow
@@ -87,11 +91,9 @@ def test_a_shifted_hard_iron_is_learned_from_the_wheels_heading():
     released, not reset, by an accepted sample, the heading filter alone keeps that shift out: 0.52 deg.)"""
     drive = sc.make_drive("urban", "hard_iron_shift", 105)
     shift = drive.notes["hard_iron_shift"]
-    inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source=drive.name).inputs)
-    params = jm.make_params(drive.params)
-    final, out = jm.run_from(params, jm.init_state(params), inputs, jm.Config())
-    with_shift = _rmse(_after_first_minute(_err_deg(out, drive), drive))
-    without = _rmse(_after_first_minute(_err_deg(_run(drive, compass_shift=False), drive), drive))
+    final, out = _final_state_and_outputs(drive)
+    with_shift = rmse_after_first_minute(out, drive)
+    without = default_rmse_after_first_minute(drive, compass_shift=False)
     assert without > 1.5 and with_shift < 0.5 * without, (with_shift, without)
     assert np.hypot(float(final.shift.ox) - shift["X0"], float(final.shift.oy) - shift["Y0"]) < 1.0
     assert np.hypot(float(final.shift.ox), float(final.shift.oy)) > 0.6 * np.hypot(shift["X0"], shift["Y0"])
@@ -104,8 +106,6 @@ def test_a_captured_tyre_mismatch_is_not_learned_as_a_shifted_hard_iron():
     capture in it.  The shift learner reads EH as the wheels' heading, so it must not learn then: at stop 41 it moved
     the offsets by 2 µT there and the heading was 3.28 deg RMSE after the first minute, 1.08 deg without it."""
     drive = sc.make_drive("mixed", "mismatch_2.5", 110)
-    inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source=drive.name).inputs)
-    params = jm.make_params(drive.params)
-    final, out = jm.run_from(params, jm.init_state(params), inputs, jm.Config())
+    final, out = _final_state_and_outputs(drive)
     assert float(final.shift.ox) == 0.0 and float(final.shift.oy) == 0.0
-    assert _rmse(_after_first_minute(_err_deg(out, drive), drive)) < 1.5
+    assert rmse_after_first_minute(out, drive) < 1.5
