@@ -95,11 +95,53 @@ def read_drive(path) -> Drive:
 def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") -> Drive:
     """Check raw columns (as from ``read_table`` or a simulator) and build the Drive.
 
-    ``source`` names the file in error messages and is stored as metadata["path"].
+    ``source`` names the file in error messages and is stored as metadata["path"].  The checks run in the order
+    of the module docstring (columns, time, pulse counters, flags, map and fix columns); the first problem found
+    is the one refused.
     """
     import jaxmodel
 
     names = list(columns.keys())
+    cols = _checked_columns(columns, source)
+    n = len(cols["time_s"])
+    t = cols["time_s"].astype(np.float64)
+    _check_time(t, source)
+    _check_pulse_counters(cols, t, source)
+    flags, flag_nan = _checked_flags(cols, t, source)
+    # Compass: NaN/inf kept (skipped and counted by the model), counted here.
+    cx = cols["compass_x"].astype(np.float64)
+    cy = cols["compass_y"].astype(np.float64)
+    bad_compass = int(np.count_nonzero(~(np.isfinite(cx) & np.isfinite(cy))))
+    map_heading, map_valid, map_invalidated = _map_columns(cols, flags, t, source)
+    fix_east, fix_north, fix_valid, fix_invalidated = _fix_columns(cols, flags, t, source)
+    ref, missing_ref = _reference_heading(cols)
+
+    inputs = jaxmodel.Inputs(
+        time_s=t, left_pulses=cols["left_pulses"].astype(np.float64), right_pulses=cols["right_pulses"].astype(np.float64),
+        compass_x=cx, compass_y=cy, map_heading=np.asarray(map_heading, np.float64),
+        map_valid=np.asarray(map_valid, np.float64),
+        compass_unreliable_area=np.asarray(flags.get("compass_unreliable_area", np.zeros(n)), np.float64),
+        fix_east_m=np.asarray(fix_east, np.float64), fix_north_m=np.asarray(fix_north, np.float64),
+        fix_valid=np.asarray(fix_valid, np.float64))
+    metadata = {
+        "path": source,
+        "format": "columns",
+        "n_samples": n,
+        "columns": names,
+        "extra_columns": [c for c in names if c not in SCHEMA_COLUMNS],
+        "duration_s": float(t[-1] - t[0]),
+        "bad_compass_samples": bad_compass,
+        "has_ref_heading": ref is not None,
+        "missing_ref_samples": missing_ref,
+        "map_invalidated_samples": map_invalidated + flag_nan.get("map_valid", 0),
+        "fix_invalidated_samples": fix_invalidated + flag_nan.get("fix_valid", 0),
+    }
+    return Drive(inputs=inputs, ref_heading=ref, metadata=metadata)
+
+
+def _checked_columns(columns, source):
+    """The schema's columns present in ``columns`` as one-dimensional numeric arrays of one length, at least one
+    row; the required ones all there."""
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if missing:
         listed = ", ".join(repr(c) for c in missing)
@@ -117,21 +159,24 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
             raise DriveLogError(f"{source}: column {name!r} has {len(arr)} values, time_s has {n}")
     if n == 0:
         raise DriveLogError(f"{source}: empty log (no data rows)")
+    return cols
 
-    # time_s: finite and strictly increasing.
-    t = cols["time_s"].astype(np.float64)
+
+def _check_time(t, source):
+    """time_s (s): finite and strictly increasing."""
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
         i = int(bad[0])
         raise DriveLogError(f"{_where(source, i)}, column 'time_s': time is {_num(t[i])} (must be finite)")
-    if n > 1:
-        back = np.flatnonzero(np.diff(t) <= 0.0)
-        if back.size:
-            i = int(back[0]) + 1
-            raise DriveLogError(f"{_where(source, i, t[i])}, column 'time_s': time does not increase "
-                                f"(previous row {i}: {_num(t[i - 1])} s); time must be strictly increasing")
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise DriveLogError(f"{_where(source, i, t[i])}, column 'time_s': time does not increase "
+                            f"(previous row {i}: {_num(t[i - 1])} s); time must be strictly increasing")
 
-    # Pulse counters: finite non-negative integers (exact in float64).
+
+def _check_pulse_counters(cols, t, source):
+    """Pulse counters: finite non-negative integers, exact in float64; the earliest bad row is named."""
     for name in PULSE_COLUMNS:
         p = cols[name].astype(np.float64)
         problems = [(~np.isfinite(p), "is {v} (must be a finite integer)"),
@@ -149,7 +194,9 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
             raise DriveLogError(f"{_where(source, i, t[i])}, column {name!r}: pulse count "
                                 + text.format(v=_num(p[i])))
 
-    # Flags: 0/1 (NaN means 0 at that row).
+
+def _checked_flags(cols, t, source):
+    """The flag columns present, 0/1 (NaN means 0 at that row): (flags by name, their NaN counts by name)."""
     flags: dict[str, np.ndarray] = {}
     flag_nan: dict[str, int] = {}
     for name in FLAG_COLUMNS:
@@ -164,83 +211,58 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
                                 f"(must be 0 or 1)")
         flag_nan[name] = int(np.count_nonzero(~finite))
         flags[name] = np.where(finite, f, 0.0)
+    return flags, flag_nan
 
-    # Compass: NaN/inf kept (skipped and counted by the model), counted here.
-    cx = cols["compass_x"].astype(np.float64)
-    cy = cols["compass_y"].astype(np.float64)
-    bad_compass = int(np.count_nonzero(~(np.isfinite(cx) & np.isfinite(cy))))
 
-    # Map-heading selector inputs: NaN heading -> map invalid at that row.
-    zeros = np.zeros(n, dtype=np.float64)
-    map_invalidated = 0
-    if "map_heading_deg" in cols:
-        mh = cols["map_heading_deg"].astype(np.float64)
-        mh_ok = np.isfinite(mh)
-        map_valid = flags.get("map_valid", np.where(mh_ok, 1.0, 0.0))
-        map_invalidated = int(np.count_nonzero((map_valid > 0.5) & ~mh_ok))
-        map_valid = np.where(mh_ok, map_valid, 0.0)
-        map_heading = np.where(mh_ok, wrap_rad(np.deg2rad(np.where(mh_ok, mh, 0.0))), 0.0)
-    else:
-        map_heading = zeros.copy()
+def _refuse_flag_without_column(valid, t, source, column, flag):
+    """A set ``flag`` whose data ``column`` is absent from the log: refused at its first row."""
+    idx = np.flatnonzero(valid > 0.5)
+    if idx.size:
+        i = int(idx[0])
+        raise DriveLogError(f"{_where(source, i, t[i])}, column {column!r}: missing, but {flag} is set")
+
+
+def _map_columns(cols, flags, t, source):
+    """Map-heading selector inputs: (map heading rad, map_valid, rows whose set map_valid a NaN heading cleared)."""
+    zeros = np.zeros(len(t), dtype=np.float64)
+    if "map_heading_deg" not in cols:
         map_valid = flags.get("map_valid", zeros.copy())
-        idx = np.flatnonzero(map_valid > 0.5)
-        if idx.size:
-            i = int(idx[0])
-            raise DriveLogError(f"{_where(source, i, t[i])}, column 'map_heading_deg': missing, but map_valid "
-                                f"is set")
-    unreliable = flags.get("compass_unreliable_area", zeros.copy())
+        _refuse_flag_without_column(map_valid, t, source, "map_heading_deg", "map_valid")
+        return zeros.copy(), map_valid, 0
+    mh = cols["map_heading_deg"].astype(np.float64)
+    mh_ok = np.isfinite(mh)
+    map_valid = flags.get("map_valid", np.where(mh_ok, 1.0, 0.0))
+    invalidated = int(np.count_nonzero((map_valid > 0.5) & ~mh_ok))
+    map_heading = np.where(mh_ok, wrap_rad(np.deg2rad(np.where(mh_ok, mh, 0.0))), 0.0)
+    return map_heading, np.where(mh_ok, map_valid, 0.0), invalidated
 
-    # Position fixes: NaN east/north -> fix invalid at that row.
-    fix_invalidated = 0
+
+def _fix_columns(cols, flags, t, source):
+    """Position fixes: (east m, north m, fix_valid, rows whose set fix_valid a NaN east or north cleared)."""
+    zeros = np.zeros(len(t), dtype=np.float64)
     has_fix_xy = ("fix_east_m" in cols, "fix_north_m" in cols)
-    if any(has_fix_xy):
-        if not all(has_fix_xy):
-            other = "fix_north_m" if has_fix_xy[0] else "fix_east_m"
-            raise DriveLogError(f"{source}: column {other!r} missing (fix_east_m and fix_north_m come together)")
-        fe = cols["fix_east_m"].astype(np.float64)
-        fn = cols["fix_north_m"].astype(np.float64)
-        fix_ok = np.isfinite(fe) & np.isfinite(fn)
-        fix_valid = flags.get("fix_valid", np.where(fix_ok, 1.0, 0.0))
-        fix_invalidated = int(np.count_nonzero((fix_valid > 0.5) & ~fix_ok))
-        fix_valid = np.where(fix_ok, fix_valid, 0.0)
-        fix_east = np.where(fix_ok, fe, 0.0)
-        fix_north = np.where(fix_ok, fn, 0.0)
-    else:
-        fix_east, fix_north = zeros.copy(), zeros.copy()
+    if not any(has_fix_xy):
         fix_valid = flags.get("fix_valid", zeros.copy())
-        idx = np.flatnonzero(fix_valid > 0.5)
-        if idx.size:
-            i = int(idx[0])
-            raise DriveLogError(f"{_where(source, i, t[i])}, column 'fix_east_m': missing, but fix_valid is set")
+        _refuse_flag_without_column(fix_valid, t, source, "fix_east_m", "fix_valid")
+        return zeros.copy(), zeros.copy(), fix_valid, 0
+    if not all(has_fix_xy):
+        other = "fix_north_m" if has_fix_xy[0] else "fix_east_m"
+        raise DriveLogError(f"{source}: column {other!r} missing (fix_east_m and fix_north_m come together)")
+    fe = cols["fix_east_m"].astype(np.float64)
+    fn = cols["fix_north_m"].astype(np.float64)
+    fix_ok = np.isfinite(fe) & np.isfinite(fn)
+    fix_valid = flags.get("fix_valid", np.where(fix_ok, 1.0, 0.0))
+    invalidated = int(np.count_nonzero((fix_valid > 0.5) & ~fix_ok))
+    return np.where(fix_ok, fe, 0.0), np.where(fix_ok, fn, 0.0), np.where(fix_ok, fix_valid, 0.0), invalidated
 
-    ref = None
-    missing_ref = 0
-    if "ref_heading_deg" in cols:
-        r = cols["ref_heading_deg"].astype(np.float64)
-        ok = np.isfinite(r)
-        missing_ref = int(np.count_nonzero(~ok))
-        ref = np.where(ok, wrap_rad(np.deg2rad(np.where(ok, r, 0.0))), np.nan)
 
-    inputs = jaxmodel.Inputs(
-        time_s=t, left_pulses=cols["left_pulses"].astype(np.float64), right_pulses=cols["right_pulses"].astype(np.float64),
-        compass_x=cx, compass_y=cy, map_heading=np.asarray(map_heading, np.float64),
-        map_valid=np.asarray(map_valid, np.float64), compass_unreliable_area=np.asarray(unreliable, np.float64),
-        fix_east_m=np.asarray(fix_east, np.float64), fix_north_m=np.asarray(fix_north, np.float64),
-        fix_valid=np.asarray(fix_valid, np.float64))
-    metadata = {
-        "path": source,
-        "format": "columns",
-        "n_samples": n,
-        "columns": names,
-        "extra_columns": [c for c in names if c not in SCHEMA_COLUMNS],
-        "duration_s": float(t[-1] - t[0]),
-        "bad_compass_samples": bad_compass,
-        "has_ref_heading": ref is not None,
-        "missing_ref_samples": missing_ref,
-        "map_invalidated_samples": map_invalidated + flag_nan.get("map_valid", 0),
-        "fix_invalidated_samples": fix_invalidated + flag_nan.get("fix_valid", 0),
-    }
-    return Drive(inputs=inputs, ref_heading=ref, metadata=metadata)
+def _reference_heading(cols):
+    """(reference heading rad wrapped, NaN where missing, or None without the column; its missing rows)."""
+    if "ref_heading_deg" not in cols:
+        return None, 0
+    r = cols["ref_heading_deg"].astype(np.float64)
+    ok = np.isfinite(r)
+    return np.where(ok, wrap_rad(np.deg2rad(np.where(ok, r, 0.0))), np.nan), int(np.count_nonzero(~ok))
 
 
 # ----------------------------------------------------------------------------------------------
