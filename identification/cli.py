@@ -112,6 +112,7 @@ def _common() -> argparse.ArgumentParser:
 
 
 def _parser() -> argparse.ArgumentParser:
+    """The whole command line: the top-level options and one subparser per command."""
     p = _Parser(
         prog="odocompass", formatter_class=_Formatter,
         description="Dead-reckoning heading estimation: odometer + compass (SPEC §5). Headings are degrees "
@@ -131,6 +132,21 @@ def _parser() -> argparse.ArgumentParser:
     def add(name, help_, description):
         return sub.add_parser(name, help=help_, description=description, parents=common, formatter_class=_Formatter)
 
+    # the order of these calls is the order of the commands in --help and in the invalid-choice message
+    _add_demo_parser(add)
+    _add_simulate_parser(add)
+    _add_estimate_parser(add)
+    _add_identify_parser(add)
+    _add_build_fmu_parser(add)
+    _add_import_parser(add)
+    from .cli_fleet import add_parser as add_fleet  # fleet identify / fleet evaluate (identification/cli_fleet.py)
+
+    add_fleet(add, common, _Formatter, FIT_HELP, _pos_int, _number)
+    return p
+
+
+def _add_demo_parser(add) -> None:
+    """``odocompass demo``; ``add(name, help, description)`` makes a command's subparser (see _parser)."""
     d = add("demo", "simulate, estimate, identify, build and co-simulate the FMU",
             "The main job on an embedded default: simulates drives, estimates the heading in every mode, "
             "identifies a vehicle's parameters, builds the estimator FMU and co-simulates it with fmpy. "
@@ -138,6 +154,9 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--out-dir", default="build/demo", metavar="DIR", help="folder for every output of the demo")
     d.add_argument("--quick", action="store_true", help="shorter drives (about 4 minutes of driving, for tests)")
 
+
+def _add_simulate_parser(add) -> None:
+    """``odocompass simulate``: scenario, duration, seed, true parameters, fixes, dpp mismatch, anomalies."""
     s = add("simulate", "synthetic drive plus a truth file beside it",
             "Simulates a drive of a vehicle with wheel pulse counters and a compass, and writes DRIVE plus "
             "DRIVE-stem.truth.csv / .truth.json beside it (the truth JSON is usable as --params).")
@@ -159,6 +178,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="right wheel's true distance per pulse relative excess, e.g. 0.003 (dimensionless)")
     s.add_argument("--no-anomalies", action="store_true", help="no localized magnetic anomalies")
 
+
+def _add_estimate_parser(add) -> None:
+    """``odocompass estimate``: the drive, parameters, output table and the estimator's switches."""
     e = add("estimate", "run the estimator on a drive log",
             "Runs the heading estimator over a drive log and writes one row per sample: time_s, heading_deg, "
             "wheel_heading_deg, compass_heading_deg (degrees, true north), x_m, y_m (metres east/north), "
@@ -188,6 +210,9 @@ def _parser() -> argparse.ArgumentParser:
                         "from the parameter file's X0/Y0 (jaxmodel/hard_iron.py; for a compass never calibrated: "
                         "it converges once the drive has turned through about 120 deg, docs/real-data.md)")
 
+
+def _add_identify_parser(add) -> None:
+    """``odocompass identify``: training and held-out drives, the keys fitted and the fit's settings."""
     i = add("identify", "identify vehicle parameters by gradient descent",
             "Fits vehicle parameters to reference headings (column ref_heading_deg, degrees) of logged drives "
             "and writes them, with a report, as a parameter file usable by estimate and build-fmu. Starting "
@@ -216,6 +241,9 @@ def _parser() -> argparse.ArgumentParser:
                         "fix_north_m, fix_valid: course of 20 s chords of the track), or auto (ref_heading_deg "
                         "when every training drive has it, else the fixes)")
 
+
+def _add_build_fmu_parser(add) -> None:
+    """``odocompass build-fmu``: parameters, FMU file, native or Python FMU."""
     b = add("build-fmu", "export the estimator FMU",
             "Exports the estimator as an FMI 2.0 co-simulation FMU with the parameters as start values.")
     b.add_argument("--params", default=None, metavar="P.json", help="parameter file (default: built-in defaults)")
@@ -223,6 +251,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="FMU file, must end in .fmu (with --native the default is build/OdoCompassNative.fmu)")
     b.add_argument("--native", action="store_true", help="Python-free C FMU")
 
+
+def _add_import_parser(add) -> None:
+    """``odocompass import``: source kind and path, drive file, axle and distance per pulse."""
     m = add("import", "convert a real log to the drive schema",
             "Converts a comma2k19 segment or a Husky bag into a drive log plus DRIVE-stem.params.json beside "
             "it. Sources with NaN or gaps the importer cannot bridge are refused.")
@@ -234,11 +265,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="comma2k19: wheel pair integrated into pulses (front when omitted); Husky: rear only")
     m.add_argument("--dpp", type=_number(0.0, hi=10.0), default=None, metavar="M",
                    help="metres per pulse of the synthesised counters (0.02 comma2k19, 0.001 Husky when omitted)")
-
-    from .cli_fleet import add_parser as add_fleet  # fleet identify / fleet evaluate (identification/cli_fleet.py)
-
-    add_fleet(add, common, _Formatter, FIT_HELP, _pos_int, _number)
-    return p
 
 
 def _one_line(exc: BaseException) -> str:

@@ -198,7 +198,6 @@ def fit_group(vehicles: list[VehicleData], start, keys, options: FitOptions, act
 
     import jaxmodel
 
-    from .fleet_optimize import minimize_batch
     from .identify import plan_stages
 
     t0 = time.perf_counter()
@@ -206,121 +205,29 @@ def fit_group(vehicles: list[VehicleData], start, keys, options: FitOptions, act
     active = np.ones(V, dtype=bool) if active is None else np.asarray(active, dtype=bool)
     keys = L.parse_fit(keys)
     inputs, ref, mask, counts = stack_vehicles([v.train for v in vehicles])
-    j_inputs = jax.tree_util.tree_map(jnp.asarray, inputs)
-    all_groups = [v.train + v.validate for v in vehicles]
-    e_inputs, e_ref, e_mask, e_counts = stack_vehicles(all_groups)
-    e_inputs_j = jax.tree_util.tree_map(jnp.asarray, e_inputs)
-    eval_mode = "kalman" if options.mode == "kalman" else "complementary"
-    eval_config = jaxmodel.Config(mode=eval_mode, refine_a=options.refine_a, calibration=options.calibration,
-                                  track=options.track)
-    ev = evaluator(eval_config)
-    start_stacked = stacked_params([start] * V)
-    ev_before = _ev_dicts(jax.device_get(ev(start_stacked, e_inputs_j)), e_inputs, e_ref, e_mask, e_counts)
+    train = (inputs, jax.tree_util.tree_map(jnp.asarray, inputs), ref, mask)
+    evaluate = _group_evaluator(vehicles, options)
+    current = stacked_params([start] * V)
+    ev_before = evaluate(current)
 
-    current = start_stacked
-    stages = plan_stages(keys, options.mode, options.increment_s)
     per_vehicle = [dict(param_rows={}, stage_reports=[], corr_labels=[], corr_blocks=[], warnings=[], iters=0,
                         evals=0) for _ in range(V)]
     failed = np.zeros(V, dtype=bool)
     errors = [None] * V
-    for stage in stages:
+    callback = (lambda it, n: progress(1)) if progress else None
+    for stage in plan_stages(keys, options.mode, options.increment_s):
         t_stage = time.perf_counter()
-        cfg = jaxmodel.Config(mode=stage.mode, refine_a=options.refine_a, calibration=options.calibration,
-                              track=options.track)
         space = L.make_space(stage.keys, start, all_keys=keys)
-        n_eff, prev, sw = _stage_arrays(stage, inputs, mask, start, options.decorrelation_s)
-        template = L.StageProblem(space, None, None, None, None, cfg, stage.field_name, stage.align, None, 0, None, None)
-        fn = _stage_function(template, prev is not None, sw is not None)
-        args = (current, j_inputs, jnp.asarray(ref), jnp.asarray(mask), jnp.asarray(n_eff),
-                None if prev is None else jnp.asarray(prev), None if sw is None else jnp.asarray(sw))
-
-        def fun(z, args=args, fn=fn):
-            return fn(z, *args)
-
         act = active & ~failed
-        z0 = np.zeros((V, space.dim))
-        warm = None
-        if prev is not None and stage.lag_s > options.warm_increment_s > 0:
-            # continuation: heading changes over a few seconds first (same program, other indices), whose
-            # errors stay far below pi even with a 1 % dpp mismatch; over 30 s they can wrap, and there
-            # 1 - cos is flat: a start far from the truth would stall (measured: 1 of 8 vehicles)
-            w_stage = dataclasses.replace(stage, lag_s=options.warm_increment_s)
-            w_neff, w_prev, _ = _stage_arrays(w_stage, inputs, mask, start, options.decorrelation_s)
-            w_args = args[:4] + (jnp.asarray(w_neff), jnp.asarray(w_prev)) + args[6:]
-            warm = minimize_batch(lambda z: fn(z, *w_args), z0, active=act, max_iter=options.max_iter,
-                                  gtol=options.gtol, ftol=options.ftol, direction=options.direction,
-                                  callback=(lambda it, n: progress(1)) if progress else None)
-            z0 = np.where((act & ~warm.failed)[:, None], warm.z, 0.0)
-        res = minimize_batch(
-            fun, z0, active=act, max_iter=options.max_iter, gtol=options.gtol, ftol=options.ftol, direction=options.direction,
-            callback=(lambda it, n: progress(1)) if progress else None)
-        for v in np.flatnonzero(act & res.failed):
+        fit = _fit_stage(stage, space, current, train, start, act, options, callback)
+        for v in np.flatnonzero(act & fit.res.failed):
             failed[v] = True
-            errors[v] = f"stage '{stage.name}': {res.reason[v]}"
-        hess = res.extra[0]
-        dz = [space.dtheta_dz(res.z[v]) for v in range(V)]
-        lap = [R.laplace(hess[v], dz[v]) for v in range(V)]
-        signal = np.diagonal(hess, axis1=1, axis2=2) - 1.0 > 1e-9  # (V, dim)
-        status = [[R.verdict(float(r), bool(s)) for r, s in zip(lap[v][1], signal[v])] for v in range(V)]
-        frozen = np.array([[s == "not identifiable" for s in status[v]] for v in range(V)])
-        refit = act & ~failed & frozen.any(axis=1) & ~frozen.all(axis=1)
-        z_final = res.z.copy()
-        z_final[act & frozen.all(axis=1)] = 0.0
-        res2 = None
-        if refit.any():  # keep them at the start value (z = 0) and re-optimise the others around that
-            z_fix = np.where(frozen, 0.0, res.z)
-            res2 = minimize_batch(
-                fun, z_fix, active=refit, frozen=frozen, max_iter=options.max_iter, gtol=options.gtol,
-                ftol=options.ftol, direction=options.direction, callback=(lambda it, n: progress(1)) if progress else None)
-            z_final[refit] = res2.z[refit]
-            for v in np.flatnonzero(refit):  # identify keeps the first fit's ratios (the verdicts), the refit's errors
-                _, _, se2, corr2 = R.laplace(res2.extra[0][v], space.dtheta_dz(res2.z[v]))
-                lap[v] = (None, lap[v][1], se2, corr2)
-        current = _to_params_function(space)(jnp.asarray(z_final), current)
-        theta0 = space.theta(np.zeros(space.dim))
+            errors[v] = f"stage '{stage.name}': {fit.res.reason[v]}"
+        current = _to_params_function(space)(jnp.asarray(fit.z_final), current)
         for v in np.flatnonzero(active & ~failed):
-            pv = per_vehicle[v]
-            _, ratio, se, corr = lap[v]
-            theta = space.theta(z_final[v])
-            use2 = bool(refit[v])
-            iters = int(res.iterations[v]) + (int(res2.iterations[v]) if use2 else 0)
-            evals = int(res.evaluations[v]) + (int(res2.evaluations[v]) if use2 else 0)
-            if warm is not None:
-                iters += int(warm.iterations[v])
-                evals += int(warm.evaluations[v])
-            pv["iters"] += iters
-            pv["evals"] += evals
-            for j, label in enumerate(space.labels):
-                pv["param_rows"][label] = {
-                    "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
-                    "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
-                    "prior_std_unconstrained": float(space.s[j]),
-                    "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
-                    "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[v][j]),
-                    "status": status[v][j], "stage": stage.name,
-                }
-            pv["corr_labels"].extend(space.labels)
-            pv["corr_blocks"].append(corr)
-            conv = bool(res2.converged[v]) if use2 else bool(res.converged[v])
-            why = res2.reason[v] if use2 else res.reason[v]
-            pv["stage_reports"].append({
-                "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
-                "estimator_mode": stage.mode,
-                "loss": (f"1 - cos of the heading change error over {stage.lag_s:g} s" if stage.lag_s > 0
-                         else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
-                "effective_errors_per_drive": [float(x) for x in n_eff[v, :counts[v]]],
-                "derivatives": "forward (vmapped over the vehicles of the group)",
-                "iterations": iters, "evaluations": evals, "converged": conv, "stop_reason": why,
-                "loss_history": res.history[v], "loss_history_refit": res2.history[v] if use2 else [],
-                "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(frozen[v])] if use2 else [],
-                "warm_start": (f"fitted first over {options.warm_increment_s:g}-s heading changes "
-                               f"({int(warm.iterations[v])} iterations)") if warm is not None else None,
-                "wall_time_s_group": time.perf_counter() - t_stage,
-            })
-            if not conv:
-                pv["warnings"].append(f"stage '{stage.name}' did not converge: {why}")
+            _record_stage(per_vehicle[v], v, stage, space, fit, counts[v], options, t_stage)
 
-    ev_after = _ev_dicts(jax.device_get(ev(current, e_inputs_j)), e_inputs, e_ref, e_mask, e_counts)
+    ev_after = evaluate(current)
     wall = time.perf_counter() - t0
     results = []
     for v, veh in enumerate(vehicles):
@@ -335,6 +242,189 @@ def fit_group(vehicles: list[VehicleData], start, keys, options: FitOptions, act
         results.append(dict(vehicle_id=veh.vehicle_id, status="warning" if report["warnings"] else "ok",
                             params=jaxmodel.params_to_dict(fitted), report=report, error=None, fitted=fitted))
     return results
+
+
+def _group_evaluator(vehicles: list[VehicleData], options: FitOptions):
+    """``evaluate(stacked Params)``: per vehicle, the _ev_dicts of its training and validation drives run
+    with the fitted mode's estimator (kalman, else complementary)."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    e_inputs, e_ref, e_mask, e_counts = stack_vehicles([v.train + v.validate for v in vehicles])
+    e_inputs_j = jax.tree_util.tree_map(jnp.asarray, e_inputs)
+    eval_mode = "kalman" if options.mode == "kalman" else "complementary"
+    eval_config = jaxmodel.Config(mode=eval_mode, refine_a=options.refine_a, calibration=options.calibration,
+                                  track=options.track)
+    ev = evaluator(eval_config)
+
+    def evaluate(params):
+        return _ev_dicts(jax.device_get(ev(params, e_inputs_j)), e_inputs, e_ref, e_mask, e_counts)
+
+    return evaluate
+
+
+@dataclass
+class _StageFit:
+    """One stage's batched fit of the group: the optimiser runs and, per vehicle, the verdicts."""
+
+    res: Any              # the fit (fleet_optimize.BatchResult)
+    res2: Any             # the refit with the non-identifiable coordinates frozen, or None
+    warm: Any             # the continuation fit over warm_increment_s, or None
+    refit: np.ndarray     # (V,) bool: refitted (res2 is its final fit)
+    frozen: np.ndarray    # (V, dim) bool: not identifiable, kept at the start value
+    z_final: np.ndarray   # (V, dim) whitened coordinates fitted
+    lap: list             # per vehicle R.laplace: the fit's ratios, the refit's errors when refitted
+    signal: np.ndarray    # (V, dim) bool: the drives inform the coordinate
+    status: list          # per vehicle, per coordinate: R.verdict
+    n_eff: np.ndarray     # (V, D) effective errors per drive
+
+    def counts(self, v) -> tuple[int, int]:
+        """(iterations, evaluations) of vehicle ``v`` over the warm start, the fit and the refit."""
+        use2 = bool(self.refit[v])
+        iters = int(self.res.iterations[v]) + (int(self.res2.iterations[v]) if use2 else 0)
+        evals = int(self.res.evaluations[v]) + (int(self.res2.evaluations[v]) if use2 else 0)
+        if self.warm is not None:
+            iters += int(self.warm.iterations[v])
+            evals += int(self.warm.evaluations[v])
+        return iters, evals
+
+    def outcome(self, v) -> tuple[bool, str]:
+        """(converged, stop reason) of vehicle ``v``'s last run (the refit when refitted)."""
+        last = self.res2 if self.refit[v] else self.res
+        return bool(last.converged[v]), last.reason[v]
+
+
+def _fit_stage(stage, space, current, train, start, act, options: FitOptions, callback) -> _StageFit:
+    """Fit one stage for the vehicles ``act``: warm start, fit, Laplace verdicts, then the refit of the
+    vehicles with some (not all) coordinates not identifiable."""
+    from .fleet_optimize import minimize_batch
+
+    fn, args, n_eff, prev = _stage_objective(stage, space, current, train, start, options)
+
+    def fun(z, args=args, fn=fn):
+        return fn(z, *args)
+
+    z0 = np.zeros((act.size, space.dim))
+    warm = None
+    if prev is not None and stage.lag_s > options.warm_increment_s > 0:
+        warm = _warm_fit(stage, fn, args, z0, train, start, act, options, callback)
+        z0 = np.where((act & ~warm.failed)[:, None], warm.z, 0.0)
+    res = minimize_batch(fun, z0, active=act, max_iter=options.max_iter, gtol=options.gtol, ftol=options.ftol,
+                         direction=options.direction, callback=callback)
+    lap, signal, status, frozen = _verdicts(res, space)
+    refit = act & ~res.failed & frozen.any(axis=1) & ~frozen.all(axis=1)  # failed vehicles are not refitted
+    z_final = res.z.copy()
+    z_final[act & frozen.all(axis=1)] = 0.0
+    res2 = None
+    if refit.any():  # keep them at the start value (z = 0) and re-optimise the others around that
+        z_fix = np.where(frozen, 0.0, res.z)
+        res2 = minimize_batch(
+            fun, z_fix, active=refit, frozen=frozen, max_iter=options.max_iter, gtol=options.gtol,
+            ftol=options.ftol, direction=options.direction, callback=callback)
+        z_final[refit] = res2.z[refit]
+        for v in np.flatnonzero(refit):  # identify keeps the first fit's ratios (the verdicts), the refit's errors
+            _, _, se2, corr2 = R.laplace(res2.extra[0][v], space.dtheta_dz(res2.z[v]))
+            lap[v] = (None, lap[v][1], se2, corr2)
+    return _StageFit(res, res2, warm, refit, frozen, z_final, lap, signal, status, n_eff)
+
+
+def _stage_objective(stage, space, current, train, start, options: FitOptions):
+    """(fn, args, n_eff, prev): the stage's batched objective is ``fn(z, *args)``; prev is None unless the
+    stage fits heading changes."""
+    import jax.numpy as jnp
+
+    import jaxmodel
+
+    inputs, j_inputs, ref, mask = train
+    cfg = jaxmodel.Config(mode=stage.mode, refine_a=options.refine_a, calibration=options.calibration,
+                          track=options.track)
+    n_eff, prev, sw = _stage_arrays(stage, inputs, mask, start, options.decorrelation_s)
+    template = L.StageProblem(space, None, None, None, None, cfg, stage.field_name, stage.align, None, 0, None, None)
+    fn = _stage_function(template, prev is not None, sw is not None)
+    args = (current, j_inputs, jnp.asarray(ref), jnp.asarray(mask), jnp.asarray(n_eff),
+            None if prev is None else jnp.asarray(prev), None if sw is None else jnp.asarray(sw))
+    return fn, args, n_eff, prev
+
+
+def _warm_fit(stage, fn, args, z0, train, start, act, options: FitOptions, callback):
+    """The continuation fit: the stage's program over heading changes of ``warm_increment_s``."""
+    import jax.numpy as jnp
+
+    from .fleet_optimize import minimize_batch
+
+    # continuation: heading changes over a few seconds first (same program, other indices), whose
+    # errors stay far below pi even with a 1 % dpp mismatch; over 30 s they can wrap, and there
+    # 1 - cos is flat: a start far from the truth would stall (measured: 1 of 8 vehicles)
+    inputs, _, _, mask = train
+    w_stage = dataclasses.replace(stage, lag_s=options.warm_increment_s)
+    w_neff, w_prev, _ = _stage_arrays(w_stage, inputs, mask, start, options.decorrelation_s)
+    w_args = args[:4] + (jnp.asarray(w_neff), jnp.asarray(w_prev)) + args[6:]
+    return minimize_batch(lambda z: fn(z, *w_args), z0, active=act, max_iter=options.max_iter,
+                          gtol=options.gtol, ftol=options.ftol, direction=options.direction, callback=callback)
+
+
+def _verdicts(res, space):
+    """(lap, signal, status, frozen) per vehicle from the fit's Gauss-Newton Hessian: R.laplace, whether
+    the drives inform each coordinate, its R.verdict, and the coordinates not identifiable."""
+    hess = res.extra[0]
+    V = res.z.shape[0]
+    dz = [space.dtheta_dz(res.z[v]) for v in range(V)]
+    lap = [R.laplace(hess[v], dz[v]) for v in range(V)]
+    signal = np.diagonal(hess, axis1=1, axis2=2) - 1.0 > 1e-9  # (V, dim)
+    status = [[R.verdict(float(r), bool(s)) for r, s in zip(lap[v][1], signal[v])] for v in range(V)]
+    frozen = np.array([[s == "not identifiable" for s in status[v]] for v in range(V)])
+    return lap, signal, status, frozen
+
+
+def _record_stage(pv, v, stage, space, fit: _StageFit, n_drives, options: FitOptions, t_stage) -> None:
+    """Add vehicle ``v``'s results of the stage to its report parts ``pv`` (see fit_group)."""
+    iters, evals = fit.counts(v)
+    pv["iters"] += iters
+    pv["evals"] += evals
+    pv["param_rows"].update(_parameter_rows(v, stage, space, fit))
+    pv["corr_labels"].extend(space.labels)
+    pv["corr_blocks"].append(fit.lap[v][3])
+    conv, why = fit.outcome(v)
+    pv["stage_reports"].append(_stage_report(v, stage, space, fit, n_drives, iters, evals, options, t_stage))
+    if not conv:
+        pv["warnings"].append(f"stage '{stage.name}' did not converge: {why}")
+
+
+def _parameter_rows(v, stage, space, fit: _StageFit) -> dict[str, dict]:
+    """Report rows of the stage's parameters for vehicle ``v`` (identify's "parameters" entries)."""
+    _, ratio, se, _ = fit.lap[v]
+    theta0 = space.theta(np.zeros(space.dim))
+    theta = space.theta(fit.z_final[v])
+    return {label: {
+        "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
+        "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
+        "prior_std_unconstrained": float(space.s[j]),
+        "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
+        "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(fit.signal[v][j]),
+        "status": fit.status[v][j], "stage": stage.name,
+    } for j, label in enumerate(space.labels)}
+
+
+def _stage_report(v, stage, space, fit: _StageFit, n_drives, iters, evals, options: FitOptions, t_stage) -> dict:
+    """Vehicle ``v``'s entry of the report's "stages" list (identify's keys)."""
+    use2 = bool(fit.refit[v])
+    conv, why = fit.outcome(v)
+    return {
+        "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
+        "estimator_mode": stage.mode,
+        "loss": (f"1 - cos of the heading change error over {stage.lag_s:g} s" if stage.lag_s > 0
+                 else "1 - cos of the absolute heading error" + (" (per-drive offset removed)" if stage.align else "")),
+        "effective_errors_per_drive": [float(x) for x in fit.n_eff[v, :n_drives]],
+        "derivatives": "forward (vmapped over the vehicles of the group)",
+        "iterations": iters, "evaluations": evals, "converged": conv, "stop_reason": why,
+        "loss_history": fit.res.history[v], "loss_history_refit": fit.res2.history[v] if use2 else [],
+        "refit_with_fixed": [space.labels[j] for j in np.flatnonzero(fit.frozen[v])] if use2 else [],
+        "warm_start": (f"fitted first over {options.warm_increment_s:g}-s heading changes "
+                       f"({int(fit.warm.iterations[v])} iterations)") if fit.warm is not None else None,
+        "wall_time_s_group": time.perf_counter() - t_stage,
+    }
 
 
 def rmse_rows(ev_before, ev_after, drives, roles, mode) -> list[dict]:

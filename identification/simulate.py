@@ -34,7 +34,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
@@ -132,6 +132,38 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
     correlated over 30 s, as multipath and atmosphere make a receiver's) or "white" (independent
     Gaussian errors, the assumption of US 4,680,715 claim 1).
     """
+    _check_arguments(scenario, duration_s, dpp_mismatch, fixes_sigma, fixes_model)
+    p = true_params(params)
+    seq = np.random.SeedSequence([int(seed), SCENARIOS.index(scenario)])
+    rng_route, rng_wheel, rng_compass, rng_anom, rng_ref = (np.random.default_rng(s) for s in seq.spawn(5))
+    k_max = max_steering_curvature(p)
+    route = _make_route(scenario, duration_s, rng_route, k_max)
+    smp = _sample_kinematics(route, duration_s, rng_route)
+    wheels = _wheel_pulses(smp, p, dpp_mismatch, rng_wheel)
+    mag = _compass(route, smp, p, anomalies, faults, rng_anom, rng_compass)
+    columns = _columns(route, smp, wheels, mag, fixes_sigma, fixes_model, rng_ref)
+    truth = {
+        "time_s": columns["time_s"],
+        **_truth_series(smp, wheels, mag),
+        "params": p,
+        "scenario": scenario,
+        "seed": int(seed),
+        "duration_s": float(duration_s),
+        "dpp_mismatch": float(dpp_mismatch),
+        "true_dpp_left": wheels.dpp_left,
+        "true_dpp_right": wheels.dpp_right,
+        "field_horizontal_ut": mag.horizontal,
+        "n_anomalies": mag.n_anomalies,
+        "fixes_sigma": fixes_sigma,
+        "fixes_model": fixes_model if fixes_sigma is not None else None,
+        "anomalies": bool(anomalies),
+        "faults": bool(faults),
+    }
+    return columns, truth
+
+
+def _check_arguments(scenario, duration_s, dpp_mismatch, fixes_sigma, fixes_model) -> None:
+    """Refuse an unknown scenario or fixes model and out-of-range duration, mismatch or fix sigma."""
     if scenario not in SCENARIOS:
         raise OdoCompassError(f"unknown scenario {scenario!r}; expected one of {', '.join(SCENARIOS)}")
     if not duration_s > 0.0 or not math.isfinite(duration_s):
@@ -142,21 +174,33 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
         raise OdoCompassError(f"--fixes-sigma must be >= 0 m, got {fixes_sigma}")
     if fixes_model not in FIX_MODELS:
         raise OdoCompassError(f"unknown fixes model {fixes_model!r}; expected one of {', '.join(FIX_MODELS)}")
-    p = true_params(params)
-    seq = np.random.SeedSequence([int(seed), SCENARIOS.index(scenario)])
-    rng_route, rng_wheel, rng_compass, rng_anom, rng_ref = (np.random.default_rng(s) for s in seq.spawn(5))
-    k_max = max_steering_curvature(p)
-    route = _make_route(scenario, duration_s, rng_route, k_max)
 
-    # --- sample the kinematics -------------------------------------------------------------
-    t = sample_times(duration_s, rng_route)
+
+class _Samples(NamedTuple):
+    """The route read at the sample times (one entry per sample)."""
+
+    t: np.ndarray          # sample times, s
+    dt: np.ndarray         # time since the previous sample (the first: SAMPLE_PERIOD_S)
+    s_k: np.ndarray        # distance along the route, m
+    speed: np.ndarray
+    psi: np.ndarray        # true heading, rad
+    x: np.ndarray
+    y: np.ndarray
+    sig: np.ndarray        # signed travelled distance, m
+    kappa: np.ndarray      # heading change per signed metre
+    node: np.ndarray       # grid interval containing s_k
+    direction: np.ndarray  # +1 forward, -1 reverse
+    pitch: np.ndarray      # rad
+    roll: np.ndarray       # rad
+    road: np.ndarray       # index into ROAD_NAMES
+
+
+def _sample_kinematics(route, duration_s, rng) -> _Samples:
+    """Position, heading, speed, curvature, road class and body pitch/roll at jittered 10 Hz sample times."""
+    t = sample_times(duration_s, rng)
     s_k = np.interp(t, route.t_knots, route.s_knots)
     speed = np.interp(t, route.t_knots, route.v_knots)
     g = route.s
-    psi = np.interp(s_k, g, route.psi)
-    x = np.interp(s_k, g, route.x)
-    y = np.interp(s_k, g, route.y)
-    sig = np.interp(s_k, g, route.sigma)
     kappa = np.interp(s_k, g, route.kappa)
     node = np.minimum(np.floor(s_k / GRID_M).astype(np.int64), g.size - 1)  # interval containing s_k
     direction = route.direction[node]
@@ -164,98 +208,132 @@ def simulate(scenario: str, duration_s: float, seed: int, params=None, fixes_sig
     a_long = np.where(moving, np.interp(s_k, g, route.accel), 0.0) * direction
     pitch = np.interp(s_k, g, route.grade) + np.radians(PITCH_PER_ACCEL_DEG) * a_long
     a_lat = kappa * direction * speed**2  # + towards the right
-    roll = -np.radians(ROLL_PER_ACCEL_DEG) * a_lat + _smooth_noise(rng_route, s_k, 50.0, math.radians(0.3))
-    road = route.road[node]
+    roll = -np.radians(ROLL_PER_ACCEL_DEG) * a_lat + _smooth_noise(rng, s_k, 50.0, math.radians(0.3))
+    return _Samples(
+        t=t, dt=np.diff(t, prepend=t[0] - SAMPLE_PERIOD_S), s_k=s_k, speed=speed, psi=np.interp(s_k, g, route.psi),
+        x=np.interp(s_k, g, route.x), y=np.interp(s_k, g, route.y), sig=np.interp(s_k, g, route.sigma),
+        kappa=kappa, node=node, direction=direction, pitch=pitch, roll=roll, road=route.road[node])
 
-    # --- wheels: the seed's model inverted, slip, pulses ---------------------------------------
-    AD = np.diff(sig, prepend=sig[0])
-    d_psi = np.diff(psi, prepend=psi[0])
-    dt = np.diff(t, prepend=t[0] - SAMPLE_PERIOD_S)
+
+class _Wheels(NamedTuple):
+    """Pulse counters and the wheel model's truth."""
+
+    left_pulses: np.ndarray
+    right_pulses: np.ndarray
+    curvature: np.ndarray  # ΔD/AD of the wheel model
+    dpp_left: float        # true distance per pulse
+    dpp_right: float
+
+
+def _wheel_pulses(smp: _Samples, p, dpp_mismatch, rng) -> _Wheels:
+    """Wrapping pulse counts of both wheels: the seed's wheel model inverted, plus differential slip."""
+    AD = np.diff(smp.sig, prepend=smp.sig[0])
+    d_psi = np.diff(smp.psi, prepend=smp.psi[0])
     dD, curvature = sensors.differential_distance(
-        d_psi, AD, dt, P=p["P"], B=p["B"], T_F=p["T_F"], T_R=p["T_R"], a=p["a"], front=p["sensor_axle"] == "front")
-    slip_err, _ = sensors.SlipModel().errors(AD, rng_wheel)
+        d_psi, AD, smp.dt, P=p["P"], B=p["B"], T_F=p["T_F"], T_R=p["T_R"], a=p["a"],
+        front=p["sensor_axle"] == "front")
+    slip_err, _ = sensors.SlipModel().errors(AD, rng)
     d_left, d_right = sensors.split_wheels(AD, dD + slip_err)
     dist_left, dist_right = np.cumsum(d_left), np.cumsum(d_right)
     dpp_left_true = p["dpp_left"]
     dpp_right_true = p["dpp_right"] * (1.0 + dpp_mismatch)
     modulus = int(round(p["counter_modulus"]))
-    offsets = rng_wheel.integers(0, modulus, size=2)
-    phases = rng_wheel.random(2)
+    offsets = rng.integers(0, modulus, size=2)
+    phases = rng.random(2)
     left_pulses = sensors.count_pulses(dist_left, dpp_left_true, modulus, offsets[0], phases[0])
     right_pulses = sensors.count_pulses(dist_right, dpp_right_true, modulus, offsets[1], phases[1])
+    return _Wheels(left_pulses, right_pulses, curvature, dpp_left_true, dpp_right_true)
 
-    # --- anomalies along the route, compass ----------------------------------------------------
+
+class _Compass(NamedTuple):
+    """Compass readings and the magnetic truth."""
+
+    x: np.ndarray            # µT, NaN at simulated dropouts
+    y: np.ndarray
+    disturbance: np.ndarray  # anomaly field (N, 3) µT north/east/down, without the transients
+    unreliable: np.ndarray   # bool: near a lobe known to the map (compass_unreliable_area)
+    n_anomalies: int
+    horizontal: float        # horizontal earth field, µT
+
+
+def _compass(route, smp: _Samples, p, anomalies, faults, rng_anom, rng_compass) -> _Compass:
+    """Compass readings along the drive: earth field plus anomalies and transients, noise, dropouts."""
     field = sensors.AnomalyField()
     n_anomalies = 0
     if anomalies:
-        n_anomalies = _place_anomalies(field, route, float(s_k[-1]), rng_anom)
-    disturbance, unreliable = field.evaluate(x, y)
-    transients = np.zeros_like(disturbance)
-    if anomalies:
-        for r_i, r in enumerate(ROAD_NAMES):
-            sel = road == r_i
-            if np.any(sel) and ROADS[r]["transients_per_s"] > 0.0:
-                tr = sensors.Transients(ROADS[r]["transients_per_s"]).evaluate(t, rng_anom)
-                transients += np.where(sel[:, None], tr, 0.0)
+        n_anomalies = _place_anomalies(field, route, float(smp.s_k[-1]), rng_anom)
+    disturbance, unreliable = field.evaluate(smp.x, smp.y)
+    transients = _transients(smp, disturbance, anomalies, rng_anom)
     fm = p["field_magnitude"]
     horizontal = fm if fm > 0.0 else sensors.DEFAULT_FIELD_UT
-    noise = COMPASS_NOISE_UT * rng_compass.standard_normal((t.size, 2))
+    n = smp.t.size
+    noise = COMPASS_NOISE_UT * rng_compass.standard_normal((n, 2))
     compass_x, compass_y = sensors.compass_reading(
-        psi, pitch, roll, disturbance_ned=disturbance + transients, horizontal=horizontal,
+        smp.psi, smp.pitch, smp.roll, disturbance_ned=disturbance + transients, horizontal=horizontal,
         variation_deg=p["variation_deg"], rotation_deg=p["rotation_deg"], X0=p["X0"], Y0=p["Y0"],
         deviation_deg=p["deviation_deg"], noise=noise)
     if faults:
-        bad = rng_compass.choice(np.arange(10, t.size), size=min(6, max(t.size - 10, 0)), replace=False)
+        bad = rng_compass.choice(np.arange(10, n), size=min(6, max(n - 10, 0)), replace=False)
         compass_x[bad] = np.nan
         compass_y[bad[::2]] = np.nan
+    return _Compass(compass_x, compass_y, disturbance, unreliable, n_anomalies, horizontal)
 
-    # --- map, reference heading, fixes --------------------------------------------------------
-    map_heading, map_valid = _map(route, node, rng_ref)
-    ref_noise = (math.radians(REF_NOISE_DEG) * rng_ref.standard_normal(t.size)
-                 + sensors.ou_filter(dt, 20.0, math.radians(REF_NOISE_DEG), rng_ref.standard_normal(t.size))[0])
-    heading = sensors.wrap(psi)
+
+def _transients(smp: _Samples, disturbance, anomalies, rng):
+    """Short field disturbances (passing trucks, trams), drawn per road class at that class's rate."""
+    transients = np.zeros_like(disturbance)
+    if anomalies:
+        for r_i, r in enumerate(ROAD_NAMES):
+            sel = smp.road == r_i
+            if np.any(sel) and ROADS[r]["transients_per_s"] > 0.0:
+                tr = sensors.Transients(ROADS[r]["transients_per_s"]).evaluate(smp.t, rng)
+                transients += np.where(sel[:, None], tr, 0.0)
+    return transients
+
+
+def _columns(route, smp: _Samples, wheels: _Wheels, mag: _Compass, fixes_sigma, fixes_model, rng_ref) -> dict:
+    """The drive's columns, rounded to the logged resolutions; map, reference heading and fixes drawn here."""
+    map_heading, map_valid = _map(route, smp.node, rng_ref)
+    ref_noise = _reference_noise(smp.dt, rng_ref)
     columns: dict[str, np.ndarray] = {
-        "time_s": np.round(t, 6),
-        "left_pulses": left_pulses,
-        "right_pulses": right_pulses,
-        "compass_x": np.round(compass_x, 3),  # 1 nT resolution
-        "compass_y": np.round(compass_y, 3),
-        "ref_heading_deg": np.round(np.degrees(sensors.wrap(psi + ref_noise)), 5),
+        "time_s": np.round(smp.t, 6),
+        "left_pulses": wheels.left_pulses,
+        "right_pulses": wheels.right_pulses,
+        "compass_x": np.round(mag.x, 3),  # 1 nT resolution
+        "compass_y": np.round(mag.y, 3),
+        "ref_heading_deg": np.round(np.degrees(sensors.wrap(smp.psi + ref_noise)), 5),
         "map_heading_deg": np.round(np.degrees(map_heading), 5),
         "map_valid": map_valid.astype(np.int64),
-        "compass_unreliable_area": unreliable.astype(np.int64),
+        "compass_unreliable_area": mag.unreliable.astype(np.int64),
     }
     if fixes_sigma is not None:
-        columns.update(_fixes(t, x, y, fixes_sigma, road, rng_ref, correlated=fixes_model == "gnss"))
+        columns.update(_fixes(smp.t, smp.x, smp.y, fixes_sigma, smp.road, rng_ref, correlated=fixes_model == "gnss"))
+    return columns
 
-    truth = {
-        "time_s": columns["time_s"],
+
+def _reference_noise(dt, rng):
+    """Error of the GNSS/INS reference heading, rad: white plus correlated (20 s), each REF_NOISE_DEG."""
+    n = dt.size
+    return (math.radians(REF_NOISE_DEG) * rng.standard_normal(n)
+            + sensors.ou_filter(dt, 20.0, math.radians(REF_NOISE_DEG), rng.standard_normal(n))[0])
+
+
+def _truth_series(smp: _Samples, wheels: _Wheels, mag: _Compass) -> dict:
+    """The per-sample truth (after time_s): heading, position, speed, curvatures, attitude, anomaly, road."""
+    heading = sensors.wrap(smp.psi)
+    return {
         "heading_rad": heading,
         "heading_deg": np.degrees(heading),
-        "x_m": x,
-        "y_m": y,
-        "speed_mps": speed,
-        "curvature": curvature,
-        "kappa_per_m": kappa * direction,
-        "pitch_deg": np.degrees(pitch),
-        "roll_deg": np.degrees(roll),
-        "anomaly_ut": np.linalg.norm(disturbance[:, :2], axis=1),
-        "road": np.array(ROAD_NAMES)[road],
-        "params": p,
-        "scenario": scenario,
-        "seed": int(seed),
-        "duration_s": float(duration_s),
-        "dpp_mismatch": float(dpp_mismatch),
-        "true_dpp_left": dpp_left_true,
-        "true_dpp_right": dpp_right_true,
-        "field_horizontal_ut": horizontal,
-        "n_anomalies": n_anomalies,
-        "fixes_sigma": fixes_sigma,
-        "fixes_model": fixes_model if fixes_sigma is not None else None,
-        "anomalies": bool(anomalies),
-        "faults": bool(faults),
+        "x_m": smp.x,
+        "y_m": smp.y,
+        "speed_mps": smp.speed,
+        "curvature": wheels.curvature,
+        "kappa_per_m": smp.kappa * smp.direction,
+        "pitch_deg": np.degrees(smp.pitch),
+        "roll_deg": np.degrees(smp.roll),
+        "anomaly_ut": np.linalg.norm(mag.disturbance[:, :2], axis=1),
+        "road": np.array(ROAD_NAMES)[smp.road],
     }
-    return columns, truth
 
 
 def _place_anomalies(field, route, s_end, rng):
