@@ -424,39 +424,19 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     evaluator = Evaluator(all_drives, eval_config, fixes=any(FX.has_fixes(d) for d in all_drives))
     ev_before = evaluator(start)
 
-    circle = None
-    if ("X0" in keys and "Y0" in keys
-            and (field_circle == "on" or (field_circle == "auto" and reference == "fixes"))):
-        from .compass_fit import field_circle as _field_circle
-
-        circle = _field_circle(inputs, sample_mask, start)
+    circle = _field_circle_start(keys, field_circle, reference, inputs, sample_mask, start)
     problem = _Problem(keys=keys, start=start, inputs=inputs, ref=ref, sample_mask=sample_mask, mask=mask,
                        reference=reference, prior_std=prior_std, decorrelation_s=decorrelation_s,
                        fix_settings=fix_settings or FX.FixSettings(), circle=circle,
                        switches=switches,
                        derivatives=derivatives, max_iter=max_iter, gtol=gtol, ftol=ftol, progress=progress)
-    current = start
-    param_rows: dict[str, dict] = {}
-    stage_reports = []
-    corr_labels: list[str] = []
-    corr_blocks = []
-    for stage in plan_stages(keys, mode, increment_s, increment_m):
-        current, rows, labels, corr, stage_report, warning = _fit_one_stage(problem, stage, current)
-        param_rows.update(rows)
-        corr_labels.extend(labels)
-        corr_blocks.append(corr)
-        stage_reports.append(stage_report)
-        if warning:
-            warnings.append(warning)
-
-    fitted = current
+    fitted, param_rows, stage_reports, corr_labels, corr_blocks = _fit_stages(
+        problem, plan_stages(keys, mode, increment_s, increment_m), warnings)
     ev_after = evaluator(fitted)
     rows = rmse_rows(ev_before, ev_after, all_drives, roles, mode, evaluator)
     warnings += R.identifiability_warnings(param_rows, R.identifiability_context(ev_after, len(train)), KEY_HINTS)
     full_corr = R.block_correlation(corr_labels, corr_blocks)
-    for a_, b_, c_ in R.correlated_pairs(corr_labels, np.nan_to_num(full_corr)):
-        warnings.append(f"{a_} and {b_} are {abs(c_):.3f} {'correlated' if c_ > 0 else 'anti-correlated'}: "
-                        f"the drives identify a combination of them, not each one")
+    warnings += _correlation_warnings(corr_labels, full_corr)
 
     report: dict[str, Any] = {
         "fit": list(keys),
@@ -482,19 +462,62 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
         "warnings": warnings,
         **_optional_report_parts(problem, fitted),
     }
-    if plots_dir is not None:  # a failed plot is reported, never the end of a finished fit
-        from . import plots
-
-        try:
-            report["plots"] = [str(p) for p in plots.write_all(Path(plots_dir), ev_before, ev_after, all_drives,
-                                                              roles, start, fitted, stage_reports, mode,
-                                                              n_train=len(train))]
-        except Exception as exc:  # noqa: BLE001 - any plotting failure (disk, backend) is only reported
-            text = " ".join(str(exc).split()) or type(exc).__name__
-            report["plot_error"] = f"{plots_dir}: plots not written: {text}"
-            warnings.append(report["plot_error"])
+    if plots_dir is not None:
+        _write_plots(report, plots_dir, (ev_before, ev_after, all_drives, roles, start, fitted, stage_reports, mode),
+                     n_train=len(train))
     report["wall_time_s"] = time.perf_counter() - t_start
     return fitted, report
+
+
+def _field_circle_start(keys, field_circle, reference, inputs, sample_mask, start):
+    """The circle fitted to the training drives' field (``compass_fit.field_circle``) that starts X0/Y0, when both
+    are fitted and ``field_circle`` asks for it ('on', or 'auto' with the fixes as the reference); else None."""
+    if not ("X0" in keys and "Y0" in keys
+            and (field_circle == "on" or (field_circle == "auto" and reference == "fixes"))):
+        return None
+    from .compass_fit import field_circle as _field_circle
+
+    return _field_circle(inputs, sample_mask, start)
+
+
+def _fit_stages(problem, stages, warnings):
+    """Fit ``stages`` one after the other from ``problem.start`` (``_fit_one_stage``); each stage's warning is
+    appended to ``warnings``.  Returns (fitted Params, parameter rows, stage reports, correlation labels, the
+    stages' correlation blocks)."""
+    current = problem.start
+    param_rows: dict[str, dict] = {}
+    stage_reports = []
+    corr_labels: list[str] = []
+    corr_blocks = []
+    for stage in stages:
+        current, rows, labels, corr, stage_report, warning = _fit_one_stage(problem, stage, current)
+        param_rows.update(rows)
+        corr_labels.extend(labels)
+        corr_blocks.append(corr)
+        stage_reports.append(stage_report)
+        if warning:
+            warnings.append(warning)
+    return current, param_rows, stage_reports, corr_labels, corr_blocks
+
+
+def _correlation_warnings(corr_labels, full_corr):
+    """One warning per pair of fitted parameters that the drives identify only in combination."""
+    return [f"{a_} and {b_} are {abs(c_):.3f} {'correlated' if c_ > 0 else 'anti-correlated'}: "
+            f"the drives identify a combination of them, not each one"
+            for a_, b_, c_ in R.correlated_pairs(corr_labels, np.nan_to_num(full_corr))]
+
+
+def _write_plots(report, plots_dir, plot_args, n_train):
+    """The report's figures (``plots.write_all(plots_dir, *plot_args)``) into ``report["plots"]``; a failed plot is
+    reported (``report["plot_error"]`` and a warning), never the end of a finished fit."""
+    from . import plots
+
+    try:
+        report["plots"] = [str(p) for p in plots.write_all(Path(plots_dir), *plot_args, n_train=n_train)]
+    except Exception as exc:  # noqa: BLE001 - any plotting failure (disk, backend) is only reported
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        report["plot_error"] = f"{plots_dir}: plots not written: {text}"
+        report["warnings"].append(report["plot_error"])
 
 
 def _progress(enabled: bool, total: int, desc: str):
