@@ -157,9 +157,31 @@ def init_calibration_state(params):
         pend_ok=z, prev_bounded=z, prev_curvature=z, prev_k=z))
 
 
+class _Window(NamedTuple):
+    """The check window's totals after the sample (``_window_totals``) and whether it is complete."""
+    left: jnp.ndarray
+    right: jnp.ndarray
+    distance: jnp.ndarray
+    ref: jnp.ndarray
+    hsum: jnp.ndarray
+    hn: jnp.ndarray
+    sane: jnp.ndarray
+    done: jnp.ndarray
+
+
+class _Stretch(NamedTuple):
+    """The straight stretch after the sample (``_stretch``) and whether it is complete."""
+    left: jnp.ndarray
+    right: jnp.ndarray
+    distance: jnp.ndarray
+    heading0: jnp.ndarray
+    heading0_ok: jnp.ndarray
+    done: jnp.ndarray
+
+
 def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok,
                      enabled, robust=False):
-    """One sample of the calibration.  Returns the new CalibrationState.
+    """One sample of the calibration (EP 0619873).  Returns the new CalibrationState.
 
     pulses_*: decoded pulse increments of this sample (0 when implausible); d_t: |AD| (m);
     compass_heading: H_C (rad), used only where compass_ok; odometer_ok: the sample's counts
@@ -168,9 +190,21 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     if not enabled:
         return cs
     cs = cs.fields()
-    one = jnp.ones((), jnp.float64)
+    win = _window_totals(params, cs, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok)
+    curvature, bounded = _window_bounded(params, cs, win, robust)
+    stretch = _stretch(params, cs, win, bounded)
+    pending = _pending_window(cs, win, bounded)
+    k_s = safe_div(stretch.left, stretch.right, fallback=1.0)
+    w = _intensity(params, cs, k_s, stretch, robust)
+    weight, weight2, m2, new_mean, ratio = _filtered_ratio(params, cs, k_s, w)
+    return CalibrationState.pack(CalibrationFields(
+        **_stretch_result(params, cs, stretch.done, k_s, weight, weight2, m2, new_mean, ratio),
+        **_next_window(cs, win, curvature), **_next_stretch(stretch), **pending))
 
-    # Check window: total the counts and the compass direction.
+
+def _window_totals(params, cs, pulses_left, pulses_right, d_t, compass_heading, compass_ok, odometer_ok):
+    """The check window (EP 0619873 claims 2-3) with the sample: the counts, the distance, the compass
+    direction and the plausibility totalled; ``done`` once it covers cal_check_distance_m."""
     c_ok = compass_ok
     h = jnp.where(c_ok, compass_heading, 0.0)
     win_left = cs.win_left + pulses_left
@@ -183,30 +217,37 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     win_hn = cs.win_hn + jnp.where(c_ok, 1.0, 0.0)
     win_sane = jnp.where(odometer_ok, cs.win_sane, 0.0)
     win_done = win_distance >= params.cal_check_distance_m
+    return _Window(win_left, win_right, win_distance, win_ref, win_hsum, win_hn, win_sane, win_done)
 
-    # Bound of the measured relationship over the window (claims 2-3), with the current coefficients.
-    d_left, d_right = win_left * cs.dpp_left, win_right * cs.dpp_right
+
+def _window_bounded(params, cs, win, robust):
+    """The window's curvature with the current coefficients and whether it bounds the measured relationship
+    (EP 0619873 claims 2-3, "continuously bounded").  Returns (curvature, bounded)."""
+    d_left, d_right = win.left * cs.dpp_left, win.right * cs.dpp_right
     curvature = safe_div(d_left - d_right, 0.5 * (d_left + d_right))
-    same_sign = win_left * win_right > 0.0
+    same_sign = win.left * win.right > 0.0
     # Straight (claims 2-3) without trusting the current coefficients: the window's curvature
     # agrees with the previous window's within cal_ratio_bound (a turn changes it by far more),
     # and stays within the largest correction of straight (a constant offset is the mismatch).
     # The counts' quantization alone moves it by about one pulse in N (``steady_bound``).
-    steady = jnp.abs(curvature - cs.prev_curvature) <= steady_bound(params, 0.5 * (win_left + win_right))
+    steady = jnp.abs(curvature - cs.prev_curvature) <= steady_bound(params, 0.5 * (win.left + win.right))
     near_straight = jnp.abs(curvature) <= 2.0 * params.cal_max_correction + params.cal_ratio_bound
-    bounded = same_sign & (win_sane > 0.5) & steady & near_straight
+    bounded = same_sign & (win.sane > 0.5) & steady & near_straight
     if not robust:  # the previous test: within cal_ratio_bound of straight with the current coefficients
-        bounded = same_sign & (win_sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
-    win_compass_ok = win_hn > 0.5
-    win_heading = wrap(win_ref + safe_div(win_hsum, win_hn))
+        bounded = same_sign & (win.sane > 0.5) & (jnp.abs(curvature) <= params.cal_ratio_bound)
+    return curvature, bounded
 
-    # Stretch (claims 2-3, 12-14).  A bounded window is held back as pending and joins the
+
+def _stretch(params, cs, win, bounded):
+    """The straight stretch (EP 0619873 claims 2-3, 12-14) after the sample: the pending window joins it when this
+    window completes bounded, an unbounded one discards it; ``done`` once it covers cal_stretch_distance_m."""
+    # A bounded window is held back as pending and joins the
     # stretch only when the next window is bounded too, and the first bounded window after an
     # unbounded one (or after the start) is a guard that never joins: a window holding the first
     # or the last metres of a turn can itself be within the bound and would bias the stretch.
     # An unbounded window discards the stretch and the pending window.
-    unbounded = win_done & ~bounded
-    commit = win_done & bounded & (cs.pend_ok > 0.5)
+    unbounded = win.done & ~bounded
+    commit = win.done & bounded & (cs.pend_ok > 0.5)
     empty = cs.str_distance <= 0.0
     str_left = jnp.where(commit, cs.str_left + cs.pend_left, jnp.where(unbounded, 0.0, cs.str_left))
     str_right = jnp.where(commit, cs.str_right + cs.pend_right, jnp.where(unbounded, 0.0, cs.str_right))
@@ -215,38 +256,55 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     str_heading0 = jnp.where(first, cs.pend_heading, cs.str_heading0)
     str_heading0_ok = jnp.where(first, cs.pend_heading_ok, cs.str_heading0_ok)
     stretch_done = commit & (str_distance >= params.cal_stretch_distance_m)
-    new_pending = win_done & bounded & (cs.prev_bounded > 0.5)
-    pend_left = jnp.where(win_done, jnp.where(new_pending, win_left, 0.0), cs.pend_left)
-    pend_right = jnp.where(win_done, jnp.where(new_pending, win_right, 0.0), cs.pend_right)
-    pend_distance = jnp.where(win_done, jnp.where(new_pending, win_distance, 0.0), cs.pend_distance)
-    pend_heading = jnp.where(new_pending, win_heading, cs.pend_heading)
-    pend_heading_ok = jnp.where(win_done, jnp.where(new_pending & win_compass_ok, 1.0, 0.0), cs.pend_heading_ok)
-    pend_ok = jnp.where(win_done, jnp.where(new_pending, 1.0, 0.0), cs.pend_ok)
-    prev_bounded = jnp.where(win_done, jnp.where(bounded, 1.0, 0.0), cs.prev_bounded)
+    return _Stretch(str_left, str_right, str_distance, str_heading0, str_heading0_ok, stretch_done)
 
-    # Correction value and its intensity (claims 5-14).
-    k_s = safe_div(str_left, str_right, fallback=1.0)
-    k0 = parameter_ratio(params)
-    mean = cs.mean
-    dpsi = wrap(cs.pend_heading - str_heading0)  # last joined window minus first
+
+def _pending_window(cs, win, bounded):
+    """The pending window's fields (pend_*, prev_bounded) after the sample: a completed window bounded after a
+    bounded one becomes pending (it joins the stretch if the next is bounded too), any other completed one clears
+    it (EP 0619873 claims 2-3)."""
+    win_compass_ok = win.hn > 0.5
+    win_heading = wrap(win.ref + safe_div(win.hsum, win.hn))
+    win_done = win.done
+    new_pending = win_done & bounded & (cs.prev_bounded > 0.5)
+    return dict(
+        pend_left=jnp.where(win_done, jnp.where(new_pending, win.left, 0.0), cs.pend_left),
+        pend_right=jnp.where(win_done, jnp.where(new_pending, win.right, 0.0), cs.pend_right),
+        pend_distance=jnp.where(win_done, jnp.where(new_pending, win.distance, 0.0), cs.pend_distance),
+        pend_heading=jnp.where(new_pending, win_heading, cs.pend_heading),
+        pend_heading_ok=jnp.where(win_done, jnp.where(new_pending & win_compass_ok, 1.0, 0.0), cs.pend_heading_ok),
+        pend_ok=jnp.where(win_done, jnp.where(new_pending, 1.0, 0.0), cs.pend_ok),
+        prev_bounded=jnp.where(win_done, jnp.where(bounded, 1.0, 0.0), cs.prev_bounded))
+
+
+def _intensity(params, cs, k_s, stretch, robust):
+    """The intensity w = w_compass w_sanity of a completed stretch's correction value k_s (EP 0619873 claims 5-11);
+    0 where no stretch completed."""
+    dpsi = wrap(cs.pend_heading - stretch.heading0)  # last joined window minus first
     tol = deg(params.cal_compass_tolerance_deg)
-    both = (cs.pend_heading_ok > 0.5) & (str_heading0_ok > 0.5)
+    both = (cs.pend_heading_ok > 0.5) & (stretch.heading0_ok > 0.5)
     w_compass = jnp.where(both, jnp.exp(-0.5 * (dpsi / tol) ** 2), params.cal_no_compass_weight)
     # Sanity (claims 10-11).  A stretch that disagrees with the previous one is an outlier: less
     # intensity.  Stretches that agree with each other but not with the filtered ratio say the
     # correction value is wrong: claim 11's *more* intensity at low sanity, up to cal_sanity_boost.
     consistency = safe_div(k_s, cs.prev_k, fallback=1.0) - 1.0
     w_consistent = jnp.where(cs.prev_k > 0.0, 1.0 / (1.0 + (consistency / params.cal_sanity_bound) ** 2), 0.5)
-    insanity = ((k_s / mean - 1.0) / params.cal_sanity_bound) ** 2
+    insanity = ((k_s / cs.mean - 1.0) / params.cal_sanity_bound) ** 2
     w_sanity = w_consistent * jnp.minimum(1.0 + insanity, params.cal_sanity_boost)
     if not robust:  # the previous reading: less intensity at low sanity
         w_sanity = 1.0 / (1.0 + insanity)
-    w = jnp.where(stretch_done, w_compass * w_sanity, 0.0)
+    return jnp.where(stretch.done, w_compass * w_sanity, 0.0)
 
-    # Filtered correction ratio (claim 13): weighted mean with forgetting f = 1 - w/N per stretch
+
+def _filtered_ratio(params, cs, k_s, w):
+    """The filtered correction ratio (EP 0619873 claim 13) with a stretch's k_s of intensity w, and the ratio to
+    apply (claim 5).  Returns (weight, weight2, m2, mean, ratio), to be taken where the stretch completed."""
+    # Weighted mean with forgetting f = 1 - w/N per stretch
     # (a growing-memory average until the weight reaches cal_filter_stretches, then exponential),
     # and its weighted spread (West's update), pooled with SIGMA_PRIOR_STRETCHES pseudo-stretches of
     # spread cal_stretch_sigma around the parameter ratio.
+    k0 = parameter_ratio(params)
+    mean = cs.mean
     f = jnp.clip(1.0 - w / params.cal_filter_stretches, 0.0, 1.0)
     weight = f * cs.weight + w
     weight2 = f * f * cs.weight2 + w * w
@@ -260,32 +318,43 @@ def calibration_step(params, cs, *, pulses_left, pulses_right, d_t, compass_head
     d = new_mean - k0
     noise_to_signal = safe_div(params.cal_significance ** 2 * var_mean, d * d, eps=1e-300, fallback=1e150)
     lam = 1.0 / (1.0 + jnp.minimum(noise_to_signal, 1e150) ** 2)
-    ratio = k0 + lam * d
+    return weight, weight2, m2, new_mean, k0 + lam * d
 
-    done = stretch_done
-    mean = jnp.where(done, new_mean, mean)
+
+def _stretch_result(params, cs, done, k_s, weight, weight2, m2, new_mean, ratio):
+    """The correction fields (dpp_left ... updates, prev_k) after the sample: a completed stretch's filtered ratio,
+    the applied ratio and its new coefficients (EP 0619873 claim 1), else unchanged."""
     ratio = jnp.where(done, ratio, cs.ratio)
     dpp_left, dpp_right = _coefficients(params, ratio)
-
-    zero_if = lambda cond, v: jnp.where(cond, 0.0, v)  # noqa: E731
-    return CalibrationState.pack(CalibrationFields(
-        dpp_left=jnp.where(stretch_done, dpp_left, cs.dpp_left),
-        dpp_right=jnp.where(stretch_done, dpp_right, cs.dpp_right),
-        ratio=ratio, mean=mean, weight=jnp.where(done, weight, cs.weight),
+    return dict(
+        dpp_left=jnp.where(done, dpp_left, cs.dpp_left), dpp_right=jnp.where(done, dpp_right, cs.dpp_right),
+        ratio=ratio, mean=jnp.where(done, new_mean, cs.mean), weight=jnp.where(done, weight, cs.weight),
         weight2=jnp.where(done, weight2, cs.weight2), m2=jnp.where(done, m2, cs.m2),
-        updates=cs.updates + jnp.where(done, 1.0, 0.0),
-        win_left=zero_if(win_done, win_left), win_right=zero_if(win_done, win_right),
-        win_distance=zero_if(win_done, win_distance), win_ref=win_ref,
-        win_hsum=zero_if(win_done, win_hsum), win_hn=zero_if(win_done, win_hn),
-        win_sane=jnp.where(win_done, one, win_sane),
-        str_left=zero_if(stretch_done, str_left), str_right=zero_if(stretch_done, str_right),
-        str_distance=zero_if(stretch_done, str_distance), str_heading0=str_heading0,
-        str_heading0_ok=zero_if(stretch_done, str_heading0_ok),
-        pend_left=pend_left, pend_right=pend_right, pend_distance=pend_distance, pend_heading=pend_heading,
-        pend_heading_ok=pend_heading_ok, pend_ok=pend_ok, prev_bounded=prev_bounded,
-        prev_curvature=jnp.where(win_done, curvature, cs.prev_curvature),
-        prev_k=jnp.where(stretch_done, k_s, cs.prev_k),
-    ))
+        updates=cs.updates + jnp.where(done, 1.0, 0.0), prev_k=jnp.where(done, k_s, cs.prev_k))
+
+
+def _next_window(cs, win, curvature):
+    """The check window's fields (win_*, prev_curvature) for the next sample: restarted when it completed."""
+    one = jnp.ones((), jnp.float64)
+    return dict(
+        win_left=_zero_if(win.done, win.left), win_right=_zero_if(win.done, win.right),
+        win_distance=_zero_if(win.done, win.distance), win_ref=win.ref,
+        win_hsum=_zero_if(win.done, win.hsum), win_hn=_zero_if(win.done, win.hn),
+        win_sane=jnp.where(win.done, one, win.sane),
+        prev_curvature=jnp.where(win.done, curvature, cs.prev_curvature))
+
+
+def _next_stretch(stretch):
+    """The stretch's fields (str_*) for the next sample: restarted when it completed (its first heading is kept)."""
+    return dict(
+        str_left=_zero_if(stretch.done, stretch.left), str_right=_zero_if(stretch.done, stretch.right),
+        str_distance=_zero_if(stretch.done, stretch.distance), str_heading0=stretch.heading0,
+        str_heading0_ok=_zero_if(stretch.done, stretch.heading0_ok))
+
+
+def _zero_if(cond, v):
+    """v, or 0 where cond."""
+    return jnp.where(cond, 0.0, v)
 
 
 CAPTURE_RATE_Z = 6.0
