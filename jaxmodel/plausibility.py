@@ -147,9 +147,36 @@ def _snap(pulses, removed):
     return jnp.where(best_miss <= SNAP_PULSES, nearest, jnp.round(pulses)), best_miss <= SNAP_PULSES
 
 
+class _Checks(NamedTuple):
+    """One sample's increments against the guard's rates (``_checks``)."""
+    pred_left: jnp.ndarray   # m, each wheel's increment predicted from its rate
+    pred_right: jnp.ndarray
+    pred_dD: jnp.ndarray     # m, dD predicted from its rate
+    left_fast: jnp.ndarray   # the wheel's increment is beyond max_speed
+    right_fast: jnp.ndarray
+    dD: jnp.ndarray          # m, the raw dD
+    turn_bad: jnp.ndarray    # dD departs from its prediction beyond ``course_tolerance``
+    speed_ok: jnp.ndarray    # counts_ok and neither wheel beyond max_speed
+
+
+class _Substitution(NamedTuple):
+    """The sample after the guard's decision (``_substitution``), before the vernier."""
+    d_left: jnp.ndarray   # m, the increments kept (raw, substituted or 0)
+    d_right: jnp.ndarray
+    raw_ok: jnp.ndarray   # the counts passed every check as they were
+    fix: jnp.ndarray      # the sample's motion was substituted
+    kept: jnp.ndarray     # the sample's motion is used
+    single: jnp.ndarray   # pulses were removed from one wheel
+    start: jnp.ndarray    # that removal was rounded (``_vernier`` estimates it again)
+    blame_left: jnp.ndarray  # the wheel at fault is the left one
+    pulses: jnp.ndarray   # whole pulses removed from the wheel at fault
+    pulses_left: jnp.ndarray
+    pulses_right: jnp.ndarray
+
+
 def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_right, held=False, motion_dt=None):
-    """Check one sample's wheel increments (m); returns (d_left, d_right, raw_ok, speed_ok, kept, dD_sigma, new
-    GuardState).
+    """Check one sample's wheel increments (m) with US 4,680,715's speed and course checks; returns (d_left, d_right,
+    raw_ok, speed_ok, kept, dD_sigma, new GuardState).
 
     dpp_left, dpp_right: metres per pulse of each wheel (the increments are whole multiples of them).
 
@@ -167,58 +194,73 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     g = gs.fields()
     dpp = jnp.maximum(dpp_left, dpp_right)
     step_dt = jnp.where(time_ok, dt, 0.1)
+    # After a standstill the wheels moved within the sample, not over the hold: 25 pulses on one wheel passed as a
+    # pivot turn of 18-42 deg (docs/tuning.md, stop 52).
+    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), step_dt)
+    c = _checks(params, g, d_left, d_right, step_dt, moved_dt, counts_ok, dpp, held)
+    c_max = max_curvature(params.B, params.T_F)
+    track = jnp.where(params.sensor_axle > 0.5, params.T_F, params.T_R)
+    window, impossible, dead_left, one_dead = _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track)
+    s = _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts_ok, dpp_left, dpp_right)
+    usable = time_ok & s.kept & ~held  # the samples the rates, the vernier and the window learn from
+    d_left, d_right, v, fired = _vernier(g, gs, s.d_left, s.d_right, c.dD, usable, s.start, s.single,
+                                         jnp.where(s.blame_left, 1.0, -1.0), s.pulses, dpp_left, dpp_right)
+    new = _next_guard_state(g, s, c.turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v)
+    dD_sigma = _substituted_sigma(d_left, d_right, s.fix, impossible, c_max, track, step_dt)
+    return d_left, d_right, s.raw_ok & ~fired, c.speed_ok, s.kept, dD_sigma, new
+
+
+def _checks(params, g, d_left, d_right, step_dt, moved_dt, counts_ok, dpp, held):
+    """US 4,680,715's speed check (each wheel within max_speed) and course check (dD within ``course_tolerance``
+    of its recent rate) of one sample's increments, and the increments the rates predict."""
     pred_left, pred_right = g.rate_left * step_dt, g.rate_right * step_dt
     pred_dD = g.rate_dD * step_dt
     speed_limit = params.max_speed * step_dt + 2.0 * dpp
     left_fast = jnp.abs(d_left) > speed_limit
     right_fast = jnp.abs(d_right) > speed_limit
     dD = d_left - d_right
-    # After a standstill the wheels moved within the sample, not over the hold: 25 pulses on one wheel passed as a
-    # pivot turn of 18-42 deg (docs/tuning.md, stop 52).
-    moved_dt = step_dt if motion_dt is None else jnp.where(time_ok, jnp.minimum(motion_dt, step_dt), step_dt)
     tol = course_tolerance(params, dpp, moved_dt)
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
+    return _Checks(pred_left, pred_right, pred_dD, left_fast, right_fast, dD, turn_bad, speed_ok)
+
+
+def _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track):
+    """Whether the sample is no vehicle's motion: a front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq.
+    (14)'s geometric maximum c_max, or a still wheel beyond MAX_LATERAL_ACCEL on either axle (``track``: the sensor
+    axle's).  Returns (the raw counts' curvature window, impossible, dead_left, one_dead)."""
     # A front-axle turn beyond IMPOSSIBLE_CURVATURE_FACTOR times eq. (14)'s geometric maximum curvature is no
     # vehicle's motion however long it lasts (a wheel sensor that stopped counting: dD/AD = 2).  Per sample each
     # wheel's count is within a pulse of its travel (dD within 2 pulses, AD within 1); over the last GUARD_WINDOW_M
     # of the raw counts, whose cumulative counts keep that bound, a slow stuck wheel is seen too.
-    window_dD, window_AD = _curvature_window(g, d_left, d_right, speed_ok)
-    c_max = max_curvature(params.B, params.T_F)
+    window_dD, window_AD = _curvature_window(g, d_left, d_right, c.speed_ok)
     c_impossible = IMPOSSIBLE_CURVATURE_FACTOR * c_max
     # On either axle, a wheel that reads nothing while the other moves so fast that turning about the still wheel
     # would be a lateral acceleration v omega = |AD dD| / (T dt^2) beyond MAX_LATERAL_ACCEL has stopped counting.
     # (Only a dead wheel: a simulator's turn may well be beyond what tyres can do, a burst never reads zero.)
-    track = jnp.where(params.sensor_axle > 0.5, params.T_F, params.T_R)
     ad = jnp.abs(0.5 * (d_left + d_right))
     dead_left = (d_left == 0.0) & (d_right != 0.0)
     one_dead = dead_left | ((d_right == 0.0) & (d_left != 0.0))
-    lateral_limit = MAX_LATERAL_ACCEL * track * step_dt * step_dt  # the largest |AD dD| (m^2) of a sample
-    dead_at_speed = one_dead & ((jnp.abs(dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * moved_dt * moved_dt)
-    impossible = computed_once(speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
+    dead_at_speed = one_dead & ((jnp.abs(c.dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * moved_dt * moved_dt)
+    impossible = computed_once(c.speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
-        | (jnp.abs(dD) > c_impossible * ad + 3.0 * dpp)))))
+        | (jnp.abs(c.dD) > c_impossible * ad + 3.0 * dpp)))))
+    return (window_dD, window_AD), impossible, dead_left, one_dead
+
+
+def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts_ok, dpp_left, dpp_right):
+    """The guard's decision on a sample that failed a check: its motion substituted (the wheel at fault less a
+    whole number of spurious pulses, or both wheels' predictions), believed again after GUARD_MAX_SUBSTITUTED in a
+    row, or dropped (US 4,680,715's rejection, here keeping the vehicle's motion)."""
     trusting = (g.substituted < GUARD_MAX_SUBSTITUTED) | impossible
-    raw_ok = speed_ok & ~turn_bad & ~impossible
-    blame_left = left_fast | (~right_fast & (jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)))
-    # An impossible turn with one wheel reading nothing: that wheel stopped counting (the other may well be
-    # accelerating away from its rate).
-    blame_left = jnp.where(impossible & one_dead, dead_left, blame_left)
-    both = computed_once(left_fast & right_fast)
+    raw_ok = c.speed_ok & ~c.turn_bad & ~impossible
+    blame_left = _blame_left(c, d_left, d_right, impossible, dead_left, one_dead)
+    both = computed_once(c.left_fast & c.right_fast)
     # Flags read by every field of the state: computed once (packed.computed_once).
     fix = computed_once(counts_ok & ~raw_ok & trusting)
-    # A wheel that stopped counting says nothing of the turn, and the guard's turn rate may have learned the samples
-    # of it that passed (at parking speeds): it is replaced by the other wheel's travel (no turn), and the filter
-    # is told the turn is unknown (``dD_sigma``).
-    pred_dD = jnp.where(impossible, 0.0, pred_dD)
-    new_left = jnp.where(both, pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
-    new_right = jnp.where(both, pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
-    # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
-    # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
-    # Only the wheel at fault has pulses removed: one snap, on its count.
-    pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
-                          jnp.where(blame_left, g.removed_left, g.removed_right))
-    pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
+    new_left, new_right = _predicted_motion(c, d_left, d_right, impossible, blame_left, both)
+    pulses, exact, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left,
+                                                                dpp_left, dpp_right)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
     new_right = jnp.where(both, new_right, d_right - spurious_right)
@@ -227,38 +269,76 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     # A run of failures beyond GUARD_MAX_SUBSTITUTED: believe the wheels again unless a wheel is
     # beyond max_speed (that sample is dropped), so a true change of turn is not fought forever.
     believe = counts_ok & ~raw_ok & ~trusting
-    drop = believe & (left_fast | right_fast)
+    drop = believe & (c.left_fast | c.right_fast)
     d_left = jnp.where(drop | ~counts_ok, 0.0, d_left)
     d_right = jnp.where(drop | ~counts_ok, 0.0, d_right)
     kept = computed_once(counts_ok & ~drop)
-
     # A rounded removal (not an exact modulus or returning spike) is estimated again, two-sided, once
     # VERNIER_SAMPLES samples after it have been seen; the pulses it missed are taken off then.
     single = fix & ~both
     # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
     start = computed_once(single & ~exact & ~impossible)
-    usable = time_ok & kept & ~held  # the samples the rates, the vernier and the window learn from
-    d_left, d_right, v, fired = _vernier(g, gs, d_left, d_right, dD, usable, start, single,
-                                         jnp.where(blame_left, 1.0, -1.0), pulses, dpp_left, dpp_right)
+    return _Substitution(d_left, d_right, raw_ok, fix, kept, single, start, blame_left, pulses, pulses_left,
+                         pulses_right)
 
+
+def _blame_left(c, d_left, d_right, impossible, dead_left, one_dead):
+    """Whether the wheel at fault is the left one: the one beyond max_speed, else the one whose increment departs
+    more from its own recent rate, or the one reading nothing in an impossible turn."""
+    blame_left = c.left_fast | (~c.right_fast & (jnp.abs(d_left - c.pred_left) >= jnp.abs(d_right - c.pred_right)))
+    # An impossible turn with one wheel reading nothing: that wheel stopped counting (the other may well be
+    # accelerating away from its rate).
+    return jnp.where(impossible & one_dead, dead_left, blame_left)
+
+
+def _predicted_motion(c, d_left, d_right, impossible, blame_left, both):
+    """The increments (m) that replace a failed sample's: both wheels' predictions when both failed, else the wheel
+    at fault follows the other by the predicted dD (no turn for an impossible sample)."""
+    # A wheel that stopped counting says nothing of the turn, and the guard's turn rate may have learned the samples
+    # of it that passed (at parking speeds): it is replaced by the other wheel's travel (no turn), and the filter
+    # is told the turn is unknown (``dD_sigma``).
+    pred_dD = jnp.where(impossible, 0.0, c.pred_dD)
+    new_left = jnp.where(both, c.pred_left, jnp.where(blame_left, d_right + pred_dD, d_left))
+    new_right = jnp.where(both, c.pred_right, jnp.where(blame_left, d_right, d_left - pred_dD))
+    return new_left, new_right
+
+
+def _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left, dpp_left, dpp_right):
+    """The whole number of spurious pulses to remove from the wheel at fault (``_snap``).  Returns (pulses, exact,
+    pulses_left, pulses_right)."""
+    # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
+    # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
+    # Only the wheel at fault has pulses removed: one snap, on its count.
+    pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
+                          jnp.where(blame_left, g.removed_left, g.removed_right))
+    pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
+    return pulses, exact, pulses_left, pulses_right
+
+
+def _next_guard_state(g, s, turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v):
+    """The GuardState after the sample: the rates moved towards the kept increments (time constant GUARD_TAU_S),
+    the substitutions in a row, the pending removals, the curvature window and the vernier's fields ``v``."""
     w = jnp.where(usable, 1.0 - jnp.exp(-step_dt / GUARD_TAU_S), 0.0)
     inv_dt = jnp.where(time_ok, 1.0 / step_dt, 0.0)
-    substituted = jnp.where(fix, g.substituted + 1.0, 0.0)
+    substituted = jnp.where(s.fix, g.substituted + 1.0, 0.0)
     base = jnp.stack([g.rate_left + w * (d_left * inv_dt - g.rate_left),
                       g.rate_right + w * (d_right * inv_dt - g.rate_right),
                       g.rate_dD + w * ((d_left - d_right) * inv_dt - g.rate_dD),
                       substituted,
-                      _pending(single, pulses_left, g.removed_left),
-                      _pending(single, pulses_right, g.removed_right),
-                      *_stored_window(g, turn_bad, (window_dD, window_AD), d_left, d_right, usable)],
+                      _pending(s.single, s.pulses_left, g.removed_left),
+                      _pending(s.single, s.pulses_right, g.removed_right),
+                      *_stored_window(g, turn_bad, window, d_left, d_right, usable)],
                      axis=-1)
-    new = GuardState(jnp.concatenate([base, v], axis=-1))
+    return GuardState(jnp.concatenate([base, v], axis=-1))
+
+
+def _substituted_sigma(d_left, d_right, fix, impossible, c_max, track, step_dt):
+    """dD_sigma: the uncertainty (m of dD) of the turn substituted for an impossible sample, else 0."""
+    lateral_limit = MAX_LATERAL_ACCEL * track * step_dt * step_dt  # the largest |AD dD| (m^2) of a sample
     # The turn substituted for an impossible sample is a guess within c_max of the travel (and within the lateral
     # acceleration bound): its uncertainty (m of dD).
     ad_kept = jnp.abs(0.5 * (d_left + d_right))
-    dD_sigma = jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, lateral_limit / jnp.maximum(ad_kept, 1e-3)),
-                         0.0)
-    return d_left, d_right, raw_ok & ~fired, speed_ok, kept, dD_sigma, new
+    return jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, lateral_limit / jnp.maximum(ad_kept, 1e-3)), 0.0)
 
 
 VERNIER_SAMPLES = 5.0
