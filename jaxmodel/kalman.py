@@ -436,7 +436,7 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
                 fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
                 enabled=True, dt_counts=None, held=False, rate_change=0.0, rate_variance=0.0, lost_elsewhere=False):
-    """One sample.  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
+    """One sample (US 4,680,715 claim 1).  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
     dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp; dt_counts: the time
     it covers (since the counts last changed; dt if None); held: the counts repeat the last ones (no news of speed);
@@ -454,82 +454,24 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
         return ks, wheel_heading, ks.x, ks.y
     active = ks.active > 0.5
     p0 = initial_covariance(params)
-    dpp = jnp.maximum(params.dpp_left, params.dpp_right)
-    track = jnp.minimum(params.T_F, params.T_R)
-
-    # 1. Plausibility of speed and course.  A gap longer than MAX_DT_S propagates as MAX_DT_S
-    # (the noise models are for normal sampling; an absurd time step must not overflow Q).
-    dt = jnp.clip(dt, 0.0, MAX_DT_S)
-    time_ok = dt > 0.0
-    dt_counts = dt if dt_counts is None else jnp.clip(dt_counts, 0.0, MAX_DT_S)
-    v_meas = safe_div(distance, dt_counts)
-    dv_max = params.kf_max_accel * dt_counts + safe_div(2.0 * dpp, dt_counts)
-    speed_ok = odometer_ok & (jnp.abs(v_meas - ks.speed) <= dv_max)
-    dv_slew = params.kf_max_accel * dt_counts
-    v_slew = ks.speed + jnp.clip(v_meas - ks.speed, -dv_slew, dv_slew)
-    speed = jnp.where(time_ok & ~held, jnp.where(speed_ok, v_meas, v_slew), ks.speed)
-    dist_used = jnp.where(time_ok & ~speed_ok & ~held, v_slew * dt_counts, distance)
-    course_limit = deg(params.kf_max_yaw_rate_deg_s) * dt_counts + 4.0 * dpp / track
-    course_ok = jnp.abs(alpha) <= course_limit
-
+    dt, speed, dist_used, course_ok = _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, held)
     # 2. DF(V).
     s = params.kf_speed_factor * dist_used
-
-    # Predict (the filter runs only once H_W has been started).
-    err = jnp.where(active, ks.err, 0.0)
-    cov = jnp.where(active, ks.cov, p0)
-    err = err.at[I_DRIFT].add(jnp.where(active & ~course_ok, alpha, 0.0))
-    err = err.at[I_RATE].add(jnp.where(active, rate_change, 0.0))
-    cov = cov.at[I_RATE, I_RATE].max(jnp.where(active, rate_variance, 0.0))
-    course_est = err[I_DRIFT]
-    course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
-    phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0))
-    err_p, cov_p = predict(err, cov, phi, q)
-    err_p = jnp.where(active, err_p, err)
-    cov_p = jnp.where(active, cov_p, cov)
-
+    err_p, cov_p = _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, rate_change,
+                              rate_variance)
     # 3. Position computer with the corrected course.
     course_mid = wrap(wheel_heading - 0.5 * alpha - err_p[I_DRIFT])
     north = ks.y + s * jnp.cos(course_mid)
     east = ks.x + s * jnp.sin(course_mid)
-
-    # 4a. Course update: the compass course (H_COMPASS) or, where the map-heading selector of
-    # US 4,734,863 FIG. 8F chose the street heading (course support data of the seed's input
-    # means), the map course (H_MAP: the compass's colored error dth1 is not in it).
-    # One scalar update serves both (they never happen on the same sample): H_MAP is H_COMPASS
-    # with the dth1 entry zeroed, so the static pattern is H_COMPASS's and the entry is traced.
-    h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
-    course_meas = jnp.where(map_used, map_heading, compass_heading)
-    nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
-    r_c = jnp.where(map_used, map_noise(params, s, dt), compass_noise(params, e_c, s, dt))
-    valid_c = active & (compass_ok | map_used)
-    use_c = valid_c & (jnp.abs(s) > 0.0)
-    err_u, cov_u, d2_c = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
-                                pattern=H_COMPASS != 0.0)
-    err_u, cov_u, restarted, watch = _reacquire(params, ks, err_u, cov_u, p0, nu_c, d2_c, use_c, valid_c, s, dt,
-                                                wrap(wheel_heading - course_meas), lost_elsewhere)
-
-    # 4b. Position fix update (the first fix without the gate; see _reposition).
-    fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
-              & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
-    fe = jnp.where(fix_ok, fix_east, 0.0)
-    fn = jnp.where(fix_ok, fix_north, 0.0)
-    nu_f = jnp.stack([north - fn - (err_u[I_N] - err_u[I_FIX_N]), east - fe - (err_u[I_E] - err_u[I_FIX_E])])
-    r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
-    repositions = fix_ok & (ks.reposition > 0.5)
-    cov_u = _reposition(cov_u, repositions)
-    gate_f = jnp.where((ks.fixes > 0.5) & ~repositions, params.kf_gate_sigma, 0.0)
-    err_u, cov_u, d2_f = update(err_u, cov_u, nu_f, H_FIX, r_f, fix_ok, gate_f)
-    far = fix_ok & ~repositions & (d2_f > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
-    fix_rejected = jnp.where(fix_ok, jnp.where(far, ks.fix_rejected + 1.0, 0.0), ks.fix_rejected)
-    reposition = restarted | (fix_rejected >= FIX_REACQUIRE_COUNT) | ((ks.reposition > 0.5) & ~repositions)
-    fix_rejected = jnp.where(fix_rejected >= FIX_REACQUIRE_COUNT, 0.0, fix_rejected)
-
+    err_u, cov_u, restarted, watch = _course_update(
+        params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c, map_heading,
+        map_used, lost_elsewhere)
+    err_u, cov_u, fix_ok, fix_rejected, reposition = _fix_update(params, ks, err_u, cov_u, active, north, east,
+                                                                 fix_east, fix_north, fix_valid, restarted)
     # Feed the position corrections C(RN), C(RE) back and reset their error states.
     north = north - err_u[I_N]
     east = east - err_u[I_E]
     err_u = err_u.at[I_N].set(0.0).at[I_E].set(0.0)
-
     heading = jnp.where(active, wrap(wheel_heading - err_u[I_DRIFT]), wheel_heading)
     new = KalmanState(
         x=east, y=north,
@@ -543,3 +485,80 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
         alignment=ks.alignment,
     )
     return new, heading, east, north
+
+
+def _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, held):
+    """Step 1 of claim 1, the plausibility of speed and course.  Returns (dt clipped to MAX_DT_S, the speed, the
+    distance used (m; slewed at kf_max_accel where implausible), whether the course change is plausible)."""
+    dpp = jnp.maximum(params.dpp_left, params.dpp_right)
+    track = jnp.minimum(params.T_F, params.T_R)
+    # A gap longer than MAX_DT_S propagates as MAX_DT_S
+    # (the noise models are for normal sampling; an absurd time step must not overflow Q).
+    dt = jnp.clip(dt, 0.0, MAX_DT_S)
+    time_ok = dt > 0.0
+    dt_counts = dt if dt_counts is None else jnp.clip(dt_counts, 0.0, MAX_DT_S)
+    v_meas = safe_div(distance, dt_counts)
+    dv_max = params.kf_max_accel * dt_counts + safe_div(2.0 * dpp, dt_counts)
+    speed_ok = odometer_ok & (jnp.abs(v_meas - ks.speed) <= dv_max)
+    dv_slew = params.kf_max_accel * dt_counts
+    v_slew = ks.speed + jnp.clip(v_meas - ks.speed, -dv_slew, dv_slew)
+    speed = jnp.where(time_ok & ~held, jnp.where(speed_ok, v_meas, v_slew), ks.speed)
+    dist_used = jnp.where(time_ok & ~speed_ok & ~held, v_slew * dt_counts, distance)
+    course_limit = deg(params.kf_max_yaw_rate_deg_s) * dt_counts + 4.0 * dpp / track
+    return dt, speed, dist_used, jnp.abs(alpha) <= course_limit
+
+
+def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, rate_change, rate_variance):
+    """The error state and covariance predicted over the sample (the filter runs only once H_W has been started;
+    before, P0): an implausible course change goes into dth2, a new calibration's rate change into beta."""
+    err = jnp.where(active, ks.err, 0.0)
+    cov = jnp.where(active, ks.cov, p0)
+    err = err.at[I_DRIFT].add(jnp.where(active & ~course_ok, alpha, 0.0))
+    err = err.at[I_RATE].add(jnp.where(active, rate_change, 0.0))
+    cov = cov.at[I_RATE, I_RATE].max(jnp.where(active, rate_variance, 0.0))
+    course_est = err[I_DRIFT]
+    course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
+    phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0))
+    err_p, cov_p = predict(err, cov, phi, q)
+    return jnp.where(active, err_p, err), jnp.where(active, cov_p, cov)
+
+
+def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c,
+                   map_heading, map_used, lost_elsewhere):
+    """Step 4a, the course update, and the re-acquisition after it (``_reacquire``).  Returns (err, cov,
+    restarted, the watch fields of KalmanState)."""
+    # The compass course (H_COMPASS) or, where the map-heading selector of
+    # US 4,734,863 FIG. 8F chose the street heading (course support data of the seed's input
+    # means), the map course (H_MAP: the compass's colored error dth1 is not in it).
+    # One scalar update serves both (they never happen on the same sample): H_MAP is H_COMPASS
+    # with the dth1 entry zeroed, so the static pattern is H_COMPASS's and the entry is traced.
+    h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
+    course_meas = jnp.where(map_used, map_heading, compass_heading)
+    nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
+    r_c = jnp.where(map_used, map_noise(params, s, dt), compass_noise(params, e_c, s, dt))
+    valid_c = active & (compass_ok | map_used)
+    use_c = valid_c & (jnp.abs(s) > 0.0)
+    err_u, cov_u, d2_c = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,
+                                pattern=H_COMPASS != 0.0)
+    return _reacquire(params, ks, err_u, cov_u, p0, nu_c, d2_c, use_c, valid_c, s, dt,
+                      wrap(wheel_heading - course_meas), lost_elsewhere)
+
+
+def _fix_update(params, ks, err, cov, active, north, east, fix_east, fix_north, fix_valid, restarted):
+    """Step 4b, the position fix update (the first fix without the gate; see _reposition).  Returns (err, cov,
+    fix_ok, fix_rejected, reposition: the next fix repositions)."""
+    fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
+              & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
+    fe = jnp.where(fix_ok, fix_east, 0.0)
+    fn = jnp.where(fix_ok, fix_north, 0.0)
+    nu_f = jnp.stack([north - fn - (err[I_N] - err[I_FIX_N]), east - fe - (err[I_E] - err[I_FIX_E])])
+    r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
+    repositions = fix_ok & (ks.reposition > 0.5)
+    cov = _reposition(cov, repositions)
+    gate_f = jnp.where((ks.fixes > 0.5) & ~repositions, params.kf_gate_sigma, 0.0)
+    err, cov, d2_f = update(err, cov, nu_f, H_FIX, r_f, fix_ok, gate_f)
+    far = fix_ok & ~repositions & (d2_f > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
+    fix_rejected = jnp.where(fix_ok, jnp.where(far, ks.fix_rejected + 1.0, 0.0), ks.fix_rejected)
+    reposition = restarted | (fix_rejected >= FIX_REACQUIRE_COUNT) | ((ks.reposition > 0.5) & ~repositions)
+    fix_rejected = jnp.where(fix_rejected >= FIX_REACQUIRE_COUNT, 0.0, fix_rejected)
+    return err, cov, fix_ok, fix_rejected, reposition
