@@ -117,7 +117,8 @@ def drive_from_columns(columns: Mapping[str, Any], source: str = "<columns>") ->
     ref, missing_ref = _reference_heading(cols)
 
     inputs = jaxmodel.Inputs(
-        time_s=t, left_pulses=cols["left_pulses"].astype(np.float64), right_pulses=cols["right_pulses"].astype(np.float64),
+        time_s=t, left_pulses=cols["left_pulses"].astype(np.float64),
+        right_pulses=cols["right_pulses"].astype(np.float64),
         compass_x=cx, compass_y=cy, map_heading=np.asarray(map_heading, np.float64),
         map_valid=np.asarray(map_valid, np.float64),
         compass_unreliable_area=np.asarray(flags.get("compass_unreliable_area", np.zeros(n)), np.float64),

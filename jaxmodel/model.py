@@ -508,8 +508,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman",
-        rate_change=rate_change, rate_variance=jnp.where(_offset.large_drift(params, offset),
-                                                         offset.beta ** 2 + offset.p11, 0.0),
+        rate_change=rate_change, rate_variance=_kalman.released_rate_variance(params, offset, kalman_before),
         lost_elsewhere=fd.get("lost_restart", False))
     if config.mode == "kalman":
         kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.align_after(
