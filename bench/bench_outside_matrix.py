@@ -33,8 +33,8 @@ counters_held_10    the same, every 10th sample (1 Hz)
 
 The four from time_jitter on were added at stop 31, after the default's constants were frozen, as judges only.
 compass_noise, weak_field and coarse_pulses were added at stop 37; coarse_pulses (seeds 101/104) chose the form of
-model.INTERVAL_MIN_PULSES, so it judges on other seeds only (107/108: docs/benchmarks.md).  The two counters_held
-rows were added at stop 44 and chose the form of ``model.COUNTS_HOLD_MAX_S`` (seeds 107/108): they judge on other
+odometer.INTERVAL_MIN_PULSES, so it judges on other seeds only (107/108: docs/benchmarks.md).  The two counters_held
+rows were added at stop 44 and chose the form of ``odometer.COUNTS_HOLD_MAX_S`` (seeds 107/108): they judge on other
 seeds only.
 
 ``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).

@@ -65,7 +65,7 @@ def wrap_rad(angle):
 
 def counter_increments(counts, modulus):
     """Per-sample increments of cumulative pulse counters (..., N) along the last axis, a wrap at ``modulus``
-    decoded as the shortest step (numpy twin of jaxmodel.model._decode_counter); the first sample's is 0, a
+    decoded as the shortest step (numpy twin of jaxmodel.odometer.decode_counter); the first sample's is 0, a
     non-finite count gives a non-finite increment."""
     counts = np.asarray(counts, dtype=np.float64)
     d = np.diff(counts, axis=-1, prepend=counts[..., :1])

@@ -72,7 +72,7 @@ def update(ds, alpha, dt, moving, pulse, restart, dt_moved=None):
     alpha: this sample's wheel turn (rad, FIG. 8B's increment of H_W); dt: its time step (s, 0 when unusable);
     moving: the wheels travelled (bool); pulse: the heading of one pulse of dD (rad, ``pulse_heading``); restart:
     H_W was (re)started this sample or has not started (bool); dt_moved: the time (s) a moving sample's counts
-    cover (longer than dt after held counters, ``model.COUNTS_HOLD_MAX_S``; dt if None).
+    cover (longer than dt after held counters, ``odometer.COUNTS_HOLD_MAX_S``; dt if None).
     """
     f = ds.fields()
     quantum_sigma = QUANTIZATION_SIGMA * pulse

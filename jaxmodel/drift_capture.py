@@ -94,7 +94,7 @@ def measure_rate(rate_filter, rate, variance, ok):
 
 def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady, initialized):
     """EP 0619873's calibration, then the drift confirmed (the module docstring).  calibration: the calibration state
-    before this sample; odo: ``model._odometer``'s dict; h_c (rad), compass_ok (bool); offset, steady: the rate and
+    before this sample; odo: ``odometer.odometer``'s dict; h_c (rad), compass_ok (bool); offset, steady: the rate and
     steady F-DELTA after this sample's update.  Returns (calibration state, offset, steady, the change of the wheel
     heading's rate per metre [rad/m], for the Kalman mode's beta)."""
     robust = config.robust

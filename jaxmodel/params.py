@@ -71,7 +71,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("turn_curvature", 0.01, "1", "|dD/AD| above which the vehicle is turning (about 150 m radius)"),
     ParamSpec("straight_distance_m", 25.0, "m", "straight distance that ends a turn"),
     # --- curvature window, US 4,788,645 (the seed evaluates once per second) --------------
-    ParamSpec("curvature_window_m", 1.0, "m", "travelled distance over which dD/AD is evaluated: eq. (14)'s T_E per interval of this many metres (at least model.INTERVAL_MIN_PULSES pulses) from the interval's own dD/AD (the seed: once per second), and the distance constant of the exponential window of the curvature output"),
+    ParamSpec("curvature_window_m", 1.0, "m", "travelled distance over which dD/AD is evaluated: eq. (14)'s T_E per interval of this many metres (at least odometer.INTERVAL_MIN_PULSES pulses) from the interval's own dD/AD (the seed: once per second), and the distance constant of the exponential window of the curvature output"),
     ParamSpec("curvature_clip", 0.98, "1", "curvature is clipped at this fraction of the geometric maximum of eq. (14)"),
     # --- heading filter, US 4,734,863 FIG. 8C-8G ------------------------------------------
     ParamSpec("compass_error_scale_deg", 1000.0, "deg", "E_C = |B_M - B_E| / B_E x this (FIG. 8C block 5; the seed's 60 deg is for its fluxgate, tuned here, docs/tuning.md)"),

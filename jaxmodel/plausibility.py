@@ -185,7 +185,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     sample's motion is used (raw or substituted); dD_sigma: the uncertainty (m of dD) of a turn
     substituted for an ``impossible`` sample, else 0.  ``counts_ok`` is False for non-finite counts and
     the first sample (no motion).  dt: the time the increments cover (s; since the counts last changed, see
-    ``model.COUNTS_HOLD_MAX_S``); ``held``: the counts repeat the last ones within that hold (no news: nothing is
+    ``odometer.COUNTS_HOLD_MAX_S``); ``held``: the counts repeat the last ones within that hold (no news: nothing is
     checked and the rates wait for the change that covers the hold).  ``motion_dt`` (s; default dt): the time the
     wheels can have moved in, for the course check's change of turn rate and the lateral acceleration of a turn
     about a still wheel: the sample's own interval after a standstill, when dt (the time since the counts changed, up

@@ -1,5 +1,5 @@
 """Wheel counters held between their own updates (a logger faster than the counters' messages, or an FMU master
-stepping faster than the sensor): ``model.COUNTS_HOLD_MAX_S``."""
+stepping faster than the sensor): ``odometer.COUNTS_HOLD_MAX_S``."""
 
 import copy
 
@@ -59,7 +59,7 @@ def test_unchanged_counters_beyond_the_hold_are_a_standstill():
     _, out = jm.run_from(params, jm.init_state(params), inputs, jm.Config(mode="odometer"))
     speed = np.asarray(out.speed)
     assert speed[int(round(4.0 / dt))] == pytest.approx(10.0, abs=0.25)
-    standing = (t > 5.0 + jm.model.COUNTS_HOLD_MAX_S + 1e-9) & (t <= 8.0)
+    standing = (t > 5.0 + jm.odometer.COUNTS_HOLD_MAX_S + 1e-9) & (t <= 8.0)
     assert np.all(speed[standing] == 0.0)
     restart = int(np.argmax(t > 8.0 + 1e-9))
     assert speed[restart] <= 1.0 + 1e-9

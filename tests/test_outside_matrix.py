@@ -150,7 +150,7 @@ def test_coarse_pulses_count_every_third_pulse(drive):
 @pytest.mark.slow
 def test_coarse_pulses_keep_the_wheel_heading():
     """7-cm pulses (parking/baseline/101, every third pulse): the wheel turn's interval of at least
-    model.INTERVAL_MIN_PULSES pulses keeps the quantization's bias out of the odometer-only heading (measured 1.24 deg
+    odometer.INTERVAL_MIN_PULSES pulses keeps the quantization's bias out of the odometer-only heading (measured 1.24 deg
     RMSE after the first minute; 13.3 deg with the 1-m interval), and the default stays within its parking bar
     (0.96 deg measured; 4.63 deg before)."""
     from identification import scenario_eval as ev

@@ -15,7 +15,7 @@ from identification import simulate as simulate_module
 from identification.drive_log import read_drive
 from independent_drives import heading_error_deg, independent_sim, unidentified_params
 from jaxmodel import kalman, offset_filter, plausibility
-from jaxmodel.model import _decode_counter
+from jaxmodel.odometer import decode_counter
 
 
 def _drive_at(monkeypatch, rate_hz, name):
@@ -42,7 +42,7 @@ def _errors_deg(drive, config):
 def test_a_parking_drive_logged_at_50_hz_is_estimated_as_at_10_hz(monkeypatch, rate_hz):
     """Tight turns near eq. (14)'s maximum curvature at 2 pulses per sample: pairing each sample's dD with a
     curvature window that held its own quantization put the wheel heading 14 deg RMS off at 50 Hz (0.97 at 10 Hz)
-    and the default 3.65 deg; eq. (14) per interval of travel (jaxmodel.model._odometer) and the compass counted
+    and the default 3.65 deg; eq. (14) per interval of travel (jaxmodel.odometer.odometer) and the compass counted
     per time (offset_filter.COMPASS_CORR_S) keep both rates alike (measured 1.05 / 1.31 and 0.52 / 0.65 deg)."""
     drive = _drive_at(monkeypatch, rate_hz, "parking/baseline/101")
     assert abs(np.median(np.diff(drive.columns["time_s"])) - 1.0 / rate_hz) < 1e-3
@@ -141,14 +141,14 @@ def test_a_drive_logged_at_1_hz_is_estimated_as_at_10_hz(tmp_path, monkeypatch, 
 
 
 def test_a_counter_is_unwrapped_around_the_increment_the_wheels_predict():
-    """model._decode_counter: a 12-bit counter that turned by 2300 pulses between two samples (a 2.2-cm pulse at
+    """odometer.decode_counter: a 12-bit counter that turned by 2300 pulses between two samples (a 2.2-cm pulse at
     25 m/s logged at 0.5 Hz) reads -1796 decoded about zero, 2300 about the predicted 2200; an unchanged count is no
     increment even when more than half a modulus was expected (a held counter, not a whole wrap)."""
     last, count = 3000.0, float((3000 + 2300) % 4096)
-    assert float(_decode_counter(count, last, 4096.0)) == -1796.0
-    assert float(_decode_counter(count, last, 4096.0, 2200.0)) == 2300.0
-    assert float(_decode_counter(last, last, 4096.0, 3000.0)) == 0.0
-    assert float(_decode_counter(100.0, 4090.0, 4096.0, 0.0)) == 106.0  # an ordinary wrap, as before
+    assert float(decode_counter(count, last, 4096.0)) == -1796.0
+    assert float(decode_counter(count, last, 4096.0, 2200.0)) == 2300.0
+    assert float(decode_counter(last, last, 4096.0, 3000.0)) == 0.0
+    assert float(decode_counter(100.0, 4090.0, 4096.0, 0.0)) == 106.0  # an ordinary wrap, as before
 
 
 @pytest.mark.slow

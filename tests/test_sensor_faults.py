@@ -91,7 +91,7 @@ def test_a_burst_on_one_wheel_of_a_standing_car_is_no_turn(tmp_path, kind, seed,
     (4.3-cm pulses) 42 deg at 230 s, urban_hilly seed 53 (2.1-cm pulses) 18 deg at 390.5 s (+15 deg RMSE from then
     on).  The time since the counts last changed (the hold, 1 s) was taken as the time the car moved in, and over 1 s
     the course check allows 5 m of dD and the still-wheel test a turn of that size.  After a standstill the car moved
-    within the sample (model._odometer's motion_dt): both checks judge the sample's own interval, and the burst is
+    within the sample (odometer.odometer's motion_dt): both checks judge the sample's own interval, and the burst is
     taken as travel without a turn.  What can remain is one pulse (1.7 deg on urban seed 51's vehicle): complementary
     +0.08 deg there, odometer-only +0.47 deg."""
     def burst(c):
