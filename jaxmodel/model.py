@@ -252,6 +252,32 @@ def _learn_soft_iron(params, state, config, fd, compass_less_wheels, harmonics, 
     return soft_iron, soft_field
 
 
+def _soft_iron_taken_out(params, state, config, h_c_raw):
+    """(H_C as read less the deviation the field's magnitude per heading says, H_C less the soft iron the wheels'
+    turns learned too, the heading's harmonics) (rad); without ``_learns_soft_iron``: (h_c_raw, h_c_raw, None).
+
+    The soft iron's deviation read from B_E per heading (jaxmodel/soft_iron_field.py), then what the wheels' turns
+    learned of the rest (jaxmodel/soft_iron.py), taken out of the compass."""
+    if not _learns_soft_iron(config):
+        return h_c_raw, h_c_raw, None
+    harmonics = _soft.harmonics(h_c_raw)
+    # Less what the deviation table's second harmonic took out already (a calibrated compass).
+    table = _sfield.table_deviation(params.deviation_deg, deg(params.variation_deg - params.rotation_deg))
+    h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics, table))
+    return h_c_read, wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics)), harmonics
+
+
+def _dequantized(state, config, odo, heading, initializing, initialized):
+    """(dequantizer state, the heading output with the counts' quantization taken out: jaxmodel/dequantize.py) in
+    the robust modes that turn with the wheels (Config.dequantize); H_W stays as counted."""
+    if not (config.robust and config.dequantize and config.mode != "compass"):
+        return state.dequant, heading
+    dequant, epsilon = _dequant.update(state.dequant, odo["alpha"], odo["dt"], odo["d_t"] > 0.0,
+                                       _dequant.pulse_heading(odo["dpp"], odo["track"]),
+                                       initializing | (initialized < 0.5), dt_moved=odo["dt_counts"])
+    return dequant, wrap(heading + epsilon)
+
+
 def _dead_reckoned(state, heading, distance):
     """Position (m; x east, y north, heading from north) moved ``distance`` (m) at the mid-sample heading."""
     mid = wrap(state.heading + 0.5 * wrap(heading - state.heading))
@@ -307,15 +333,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     else:
         b_e, seed_field = _fdelta.seed_expected_field(params, state, b_m, compass_ok)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
-    h_c_read = h_c_raw
-    if _learns_soft_iron(config):
-        # The soft iron's deviation read from B_E per heading (jaxmodel/soft_iron_field.py), then what the wheels'
-        # turns learned of the rest (jaxmodel/soft_iron.py), taken out of the compass.
-        harmonics = _soft.harmonics(h_c_raw)
-        # Less what the deviation table's second harmonic took out already (a calibrated compass).
-        table = _sfield.table_deviation(params.deviation_deg, deg(params.variation_deg - params.rotation_deg))
-        h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics, table))
-        h_c_raw = wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics))
+    h_c_read, h_c_raw, harmonics = _soft_iron_taken_out(params, state, config, h_c_raw)
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
     # FIG. 8B: wheel heading; the first valid compass sample starts it (odometer mode too), in the Kalman mode also
@@ -375,13 +393,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     heading = {"complementary": fd["complementary"], "odometer": wheel_heading, "compass": h_c,
                "kalman": kalman_heading}[config.mode]
-    dequant = state.dequant
-    if robust and config.dequantize and config.mode != "compass":
-        # The counts' quantization taken out of the heading output (jaxmodel/dequantize.py); H_W stays as counted.
-        dequant, epsilon = _dequant.update(state.dequant, alpha, odo["dt"], d_t > 0.0,
-                                           _dequant.pulse_heading(odo["dpp"], odo["track"]),
-                                           initializing | (initialized < 0.5), dt_moved=odo["dt_counts"])
-        heading = wrap(heading + epsilon)
+    dequant, heading = _dequantized(state, config, odo, heading, initializing, initialized)
 
     if config.mode == "kalman":
         x, y = kalman_x, kalman_y
