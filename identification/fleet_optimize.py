@@ -25,7 +25,7 @@ Two search directions, the line search and stopping rules being the same:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -84,6 +84,151 @@ def _lbfgs(memory: int):
     return _OPTAX_CACHE[memory]
 
 
+@dataclass
+class _Search:
+    """The batched search's state, one lane per vehicle (mutated by the helpers below)."""
+    z: np.ndarray                 # (V, dim) current coordinates
+    value: np.ndarray             # (V,)
+    grad: np.ndarray              # (V, dim), zero on the frozen coordinates
+    extra: tuple                  # each (V, ...); extra[0] the Gauss-Newton Hessian
+    state: Any                    # the vmapped optax L-BFGS state
+    done: np.ndarray              # (V,) bool: stopped (converged, stalled, failed or inactive)
+    converged: np.ndarray         # (V,) bool
+    small: np.ndarray             # (V,) int: consecutive iterations that changed the objective by < ftol
+    iterations: np.ndarray        # (V,) int
+    evaluations: np.ndarray       # (V,) int
+    reason: list                  # (V,) str
+    history: list                 # per vehicle: objective after each iteration
+
+
+class _Trial(NamedTuple):
+    """The line search's outcome: which vehicles found a decrease, and where (the old values elsewhere)."""
+    accepted: np.ndarray
+    z: np.ndarray
+    value: np.ndarray
+    grad: np.ndarray
+    extra: tuple
+
+
+def _evaluate(fun: Callable, free, zz):
+    """(value, grad, extra) of ``fun`` at the stacked ``zz`` as float64 NumPy, the gradient zero where frozen."""
+    o = jax.device_get(fun(jnp.asarray(zz)))
+    g = np.where(free, np.asarray(o[1], dtype=np.float64), 0.0)
+    return np.asarray(o[0], dtype=np.float64), g, tuple(np.asarray(e) for e in o[2:])
+
+
+def _finish(s: _Search, mask, reason: str) -> None:
+    """The vehicles ``mask`` stop, converged, for ``reason``."""
+    for v in np.flatnonzero(mask):
+        s.reason[v] = reason
+    s.converged |= mask
+    s.done |= mask
+
+
+def _start(evaluate: Callable, z, active, gtol: float, init: Callable) -> tuple[_Search, np.ndarray]:
+    """(search state, failed) at z0: the vehicles whose objective is not finite there fail, those whose
+    gradient is already below gtol have converged."""
+    V = z.shape[0]
+    value, grad, extra = evaluate(z)
+    evaluations = active.astype(np.int64)
+    failed = active & ~(np.isfinite(value) & np.all(np.isfinite(grad), axis=1))
+    reason = ["inactive"] * V
+    for v in np.flatnonzero(failed):
+        reason[v] = "the objective is not finite at the starting parameters"
+    history = [[float(value[v])] for v in range(V)]
+    s = _Search(z, value, grad, extra, None, ~active | failed, np.zeros(V, dtype=bool), np.zeros(V, dtype=np.int64),
+                np.zeros(V, dtype=np.int64), evaluations, reason, history)
+    _finish(s, ~s.done & (np.max(np.abs(grad), axis=1) <= gtol), f"gradient below gtol={gtol:g}")
+    s.state = init(jnp.asarray(z))
+    return s, failed
+
+
+def _gauss_newton_step(free, grad, hessian):
+    """d = H^-1 g with the Gauss-Newton Hessian on the free block (identity on the frozen coordinates)."""
+    dim = free.shape[1]
+    h = np.where(free[:, :, None] & free[:, None, :], hessian, 0.0) + np.eye(dim)[None] * (~free)[:, None, :]
+    return np.where(free, _solve(h, grad), 0.0)
+
+
+def _lbfgs_step(update: Callable, free, grad, state, z):
+    """(d, new optax state): the L-BFGS direction, zero on the frozen coordinates."""
+    d, new_state = update(jnp.asarray(grad), state, jnp.asarray(z))
+    return np.where(free, np.asarray(d, dtype=np.float64), 0.0), new_state
+
+
+def _direction(s: _Search, searching, free, gn: bool, init: Callable, update: Callable):
+    """(d, slope, new_state): each vehicle's search direction (the step is -alpha d), its slope -g.d and
+    the L-BFGS state after it.  Where d is not a descent direction: steepest descent (Gauss-Newton), or
+    a restart of that vehicle's L-BFGS memory (``s.state`` reset there)."""
+    if gn:  # d = H^-1 g, the Gauss-Newton Hessian (extra[0]) on the free block
+        d, new_state = _gauss_newton_step(free, s.grad, s.extra[0]), s.state
+    else:
+        d, new_state = _lbfgs_step(update, free, s.grad, s.state, s.z)
+    slope = -np.sum(s.grad * d, axis=1)
+    restart = searching & ~((slope < 0.0) & np.all(np.isfinite(d), axis=1))
+    if gn and restart.any():  # steepest descent where the GN system failed
+        d = np.where(restart[:, None], np.where(free, s.grad, 0.0), d)
+        slope = -np.sum(s.grad * d, axis=1)
+    elif restart.any():  # not a descent direction: restart those vehicles' memory
+        s.state = _select(restart, init(jnp.asarray(s.z)), s.state)
+        d2, state2 = _lbfgs_step(update, free, s.grad, s.state, s.z)
+        d = np.where(restart[:, None], d2, d)
+        new_state = _select(restart, state2, new_state)
+        slope = -np.sum(s.grad * d, axis=1)
+    return d, slope, new_state
+
+
+def _line_search(evaluate: Callable, s: _Search, searching, d, slope, max_step: float, c1: float,
+                 max_backtracks: int) -> _Trial:
+    """Armijo backtracking along -d for the searching vehicles, all trials of an iteration batched; the
+    first step at most ``max_step`` long.  Counts each vehicle's evaluations in ``s.evaluations``."""
+    norm = np.linalg.norm(d, axis=1)
+    alpha = np.where(norm > 0, np.minimum(1.0, max_step / np.where(norm > 0, norm, 1.0)), 1.0)
+    accepted = np.zeros(s.z.shape[0], dtype=bool)
+    z_new, v_new, g_new = s.z.copy(), s.value.copy(), s.grad.copy()
+    e_new = tuple(e.copy() for e in s.extra)
+    for _ in range(max_backtracks):
+        trying = searching & ~accepted
+        if not trying.any():
+            break
+        z_try = np.where(trying[:, None], s.z - alpha[:, None] * d, s.z)
+        v_try, g_try, x_try = evaluate(z_try)
+        s.evaluations += trying
+        ok = trying & np.isfinite(v_try) & np.all(np.isfinite(g_try), axis=1) \
+            & (v_try <= s.value + c1 * alpha * slope)
+        z_new[ok], v_new[ok], g_new[ok] = z_try[ok], v_try[ok], g_try[ok]
+        for e_n, e_t in zip(e_new, x_try):
+            e_n[ok] = e_t[ok]
+        accepted |= ok
+        alpha = np.where(trying & ~ok, 0.5 * alpha, alpha)
+    return _Trial(accepted, z_new, v_new, g_new, e_new)
+
+
+def _take_steps(s: _Search, moved, trial: _Trial, new_state):
+    """Move the vehicles ``moved`` to their accepted trial (and L-BFGS state); (objective decrease,
+    curvature s.y of the step) per vehicle."""
+    s.iterations += moved
+    s_vec = trial.z - s.z
+    y_vec = trial.grad - s.grad
+    change = s.value - trial.value
+    s.state = _select(moved, new_state, s.state)
+    s.z, s.value, s.grad = np.where(moved[:, None], trial.z, s.z), np.where(moved, trial.value, s.value), \
+        np.where(moved[:, None], trial.grad, s.grad)
+    s.extra = tuple(np.where(moved.reshape((-1,) + (1,) * (e.ndim - 1)), en, e) for en, e in zip(trial.extra, s.extra))
+    for v in np.flatnonzero(moved):
+        s.history[v].append(float(s.value[v]))
+    return change, np.sum(s_vec * y_vec, axis=1)
+
+
+def _stop_tests(s: _Search, moved, change, ftol: float, gtol: float) -> None:
+    """After a step: stop on a change below ftol over two iterations, else on the gradient below gtol."""
+    s.small = np.where(moved, np.where(change < ftol, s.small + 1, 0), s.small)
+    f_stop = moved & (s.small >= 2)
+    g_stop = moved & ~f_stop & (np.max(np.abs(s.grad), axis=1) <= gtol)
+    _finish(s, f_stop, f"objective changed by less than ftol={ftol:g} over two iterations")
+    _finish(s, g_stop, f"gradient below gtol={gtol:g}")
+
+
 def minimize_batch(fun: Callable, z0, *, active=None, frozen=None, max_iter: int = 400, gtol: float = 1e-3,
                    ftol: float = 1e-7, max_step: float = 2.0, memory: int = 10, c1: float = 1e-4,
                    max_backtracks: int = 30, callback: Callable | None = None,
@@ -105,98 +250,25 @@ def minimize_batch(fun: Callable, z0, *, active=None, frozen=None, max_iter: int
     init, update = _lbfgs(memory)
 
     def evaluate(zz):
-        o = jax.device_get(fun(jnp.asarray(zz)))
-        g = np.where(free, np.asarray(o[1], dtype=np.float64), 0.0)
-        return np.asarray(o[0], dtype=np.float64), g, tuple(np.asarray(e) for e in o[2:])
+        return _evaluate(fun, free, zz)
 
-    value, grad, extra = evaluate(z)
-    evaluations = active.astype(np.int64)
-    failed = active & ~(np.isfinite(value) & np.all(np.isfinite(grad), axis=1))
-    reason = ["inactive"] * V
-    for v in np.flatnonzero(failed):
-        reason[v] = "the objective is not finite at the starting parameters"
-    done = ~active | failed
-    converged = np.zeros(V, dtype=bool)
-    small = np.zeros(V, dtype=np.int64)
-    iterations = np.zeros(V, dtype=np.int64)
-    history = [[float(value[v])] for v in range(V)]
-    gconv = ~done & (np.max(np.abs(grad), axis=1) <= gtol)
-    for v in np.flatnonzero(gconv):
-        reason[v] = f"gradient below gtol={gtol:g}"
-    converged |= gconv
-    done |= gconv
-    state = init(jnp.asarray(z))
+    s, failed = _start(evaluate, z, active, gtol, init)
     for iteration in range(1, max_iter + 1):
-        if done.all():
+        if s.done.all():
             break
-        searching = ~done
-        if gn:  # d = H^-1 g, the Gauss-Newton Hessian (extra[0]) on the free block
-            h = np.where(free[:, :, None] & free[:, None, :], extra[0], 0.0) + np.eye(dim)[None] * (~free)[:, None, :]
-            d = np.where(free, _solve(h, grad), 0.0)
-            new_state = state
-        else:
-            d, new_state = update(jnp.asarray(grad), state, jnp.asarray(z))
-            d = np.where(free, np.asarray(d, dtype=np.float64), 0.0)
-        slope = -np.sum(grad * d, axis=1)
-        restart = searching & ~((slope < 0.0) & np.all(np.isfinite(d), axis=1))
-        if gn and restart.any():  # steepest descent where the GN system failed
-            d = np.where(restart[:, None], np.where(free, grad, 0.0), d)
-            slope = -np.sum(grad * d, axis=1)
-        elif restart.any():  # not a descent direction: restart those vehicles' memory
-            state = _select(restart, init(jnp.asarray(z)), state)
-            d2, state2 = update(jnp.asarray(grad), state, jnp.asarray(z))
-            d = np.where(restart[:, None], np.where(free, np.asarray(d2, dtype=np.float64), 0.0), d)
-            new_state = _select(restart, state2, new_state)
-            slope = -np.sum(grad * d, axis=1)
-        norm = np.linalg.norm(d, axis=1)
-        alpha = np.where(norm > 0, np.minimum(1.0, max_step / np.where(norm > 0, norm, 1.0)), 1.0)
-        accepted = np.zeros(V, dtype=bool)
-        z_new, v_new, g_new = z.copy(), value.copy(), grad.copy()
-        e_new = tuple(e.copy() for e in extra)
-        for _ in range(max_backtracks):
-            trying = searching & ~accepted
-            if not trying.any():
-                break
-            z_try = np.where(trying[:, None], z - alpha[:, None] * d, z)
-            v_try, g_try, x_try = evaluate(z_try)
-            evaluations += trying
-            ok = trying & np.isfinite(v_try) & np.all(np.isfinite(g_try), axis=1) \
-                & (v_try <= value + c1 * alpha * slope)
-            z_new[ok], v_new[ok], g_new[ok] = z_try[ok], v_try[ok], g_try[ok]
-            for e_n, e_t in zip(e_new, x_try):
-                e_n[ok] = e_t[ok]
-            accepted |= ok
-            alpha = np.where(trying & ~ok, 0.5 * alpha, alpha)
-        stalled = searching & ~accepted
-        for v in np.flatnonzero(stalled):
-            reason[v] = "no decrease along the search direction (precision limit)"
-        converged |= stalled
-        done |= stalled
-        moved = searching & accepted
-        iterations += moved
-        s_vec = z_new - z
-        y_vec = g_new - grad
-        change = value - v_new
-        state = _select(moved, new_state, state)
-        z, value, grad = np.where(moved[:, None], z_new, z), np.where(moved, v_new, value), \
-            np.where(moved[:, None], g_new, grad)
-        extra = tuple(np.where(moved.reshape((-1,) + (1,) * (e.ndim - 1)), en, e) for en, e in zip(e_new, extra))
-        for v in np.flatnonzero(moved):
-            history[v].append(float(value[v]))
-        bad_curv = moved & (np.sum(s_vec * y_vec, axis=1) <= 0.0)
+        searching = ~s.done
+        d, slope, new_state = _direction(s, searching, free, gn, init, update)
+        trial = _line_search(evaluate, s, searching, d, slope, max_step, c1, max_backtracks)
+        _finish(s, searching & ~trial.accepted, "no decrease along the search direction (precision limit)")
+        moved = searching & trial.accepted
+        change, curvature = _take_steps(s, moved, trial, new_state)
+        bad_curv = moved & (curvature <= 0.0)
         if bad_curv.any() and not gn:  # curvature pair unusable: restart L-BFGS there
-            state = _select(bad_curv, init(jnp.asarray(z)), state)
-        small = np.where(moved, np.where(change < ftol, small + 1, 0), small)
-        f_stop = moved & (small >= 2)
-        for v in np.flatnonzero(f_stop):
-            reason[v] = f"objective changed by less than ftol={ftol:g} over two iterations"
-        g_stop = moved & ~f_stop & (np.max(np.abs(grad), axis=1) <= gtol)
-        for v in np.flatnonzero(g_stop):
-            reason[v] = f"gradient below gtol={gtol:g}"
-        converged |= f_stop | g_stop
-        done |= f_stop | g_stop
+            s.state = _select(bad_curv, init(jnp.asarray(s.z)), s.state)
+        _stop_tests(s, moved, change, ftol, gtol)
         if callback is not None:
-            callback(iteration, int((~done).sum()))
-    for v in np.flatnonzero(~done):
-        reason[v] = f"reached max_iter={max_iter} without meeting the convergence criteria"
-    return BatchResult(z, value, grad, extra, iterations, evaluations, converged, reason, history, failed)
+            callback(iteration, int((~s.done).sum()))
+    for v in np.flatnonzero(~s.done):
+        s.reason[v] = f"reached max_iter={max_iter} without meeting the convergence criteria"
+    return BatchResult(s.z, s.value, s.grad, s.extra, s.iterations, s.evaluations, s.converged, s.reason, s.history,
+                       failed)
