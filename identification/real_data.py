@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -155,14 +155,167 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     return res
 
 
-def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: int = 300,
-                         train_fraction: float = 0.6) -> dict[str, Any]:
+class _GpsFixes(NamedTuple):
+    """The Husky's valid GPS fixes (local east/north) and the controller's odometry yaw they are checked with."""
+    t: np.ndarray
+    east: np.ndarray
+    north: np.ndarray
+    t_all: np.ndarray             # every sample's time
+    odo_yaw: np.ndarray           # controller odometry yaw at t_all [rad, unwrapped]
+
+
+def _gps_fixes(columns) -> _GpsFixes:
+    """The valid fixes of an imported Husky drive's columns."""
+    t_all = np.asarray(columns["time_s"])
+    fv = np.asarray(columns["fix_valid"]) > 0
+    fix_t, fe, fn = t_all[fv], np.asarray(columns["fix_east_m"])[fv], np.asarray(columns["fix_north_m"])[fv]
+    odo_yaw = -np.unwrap(np.deg2rad(columns["odom_heading_deg"]))
+    return _GpsFixes(fix_t, fe, fn, t_all, odo_yaw)
+
+
+def _husky_fits(train, val, nominal, config, max_iter: int, out_dir: Path, report: dict) -> tuple[dict, dict]:
+    """(variants, results): T_R and a identified on ``train`` with the default and the wide T_R prior, each
+    fit's summary, and its parameter file written to ``out_dir``."""
     import time
 
     import jaxmodel
-    from .drive_log import drive_from_columns
-    from .estimate import estimate_drive
     from .identify import identify
+
+    variants, results = {}, {}
+    fits = {"identified": None, "identified_wide_T_R_prior": {"T_R": HUSKY_WIDE_TR_PRIOR}}
+    for name, prior in fits.items():
+        t0 = time.perf_counter()
+        fitted, fit_report = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
+                                      max_iter=max_iter, progress=sys.stderr.isatty(), config=config,
+                                      prior_std=prior)
+        variants[name] = (fitted, fit_report)
+        results[name] = {
+            "prior_std_log_T_R": (prior or {}).get("T_R", 0.05), "wall_s": round(time.perf_counter() - t0, 1),
+            "T_R": float(fitted.T_R), "a": float(fitted.a),
+            "T_R_std_error": fit_report["parameters"]["T_R"]["std_error"],
+            "T_R_status": fit_report["parameters"]["T_R"]["status"],
+            "a_status": fit_report["parameters"]["a"]["status"],
+            "iterations": fit_report["iterations"], "warnings": fit_report["warnings"],
+            "drives": fit_report["drives"]}
+        out_dir.mkdir(parents=True, exist_ok=True)
+        jaxmodel.save_params(out_dir / f"husky.{name}.params.json", fitted,
+                             report={"identify": fit_report, "import": report})
+    return variants, results
+
+
+def _husky_rmse(variants: dict, train, val, config) -> tuple[dict, dict]:
+    """(rows, outs): each variant's odometer heading RMSE and final error against the IMU yaw on the train
+    and validate parts, and the estimator's outputs there."""
+    from .estimate import estimate_drive
+
+    rows: dict[str, dict[str, float]] = {}
+    outs = {}
+    for name, (params, _rep) in variants.items():
+        for part, d in (("train", train), ("validate", val)):
+            o = estimate_drive(params, d, config)
+            outs[(name, part)] = o
+            ref = np.rad2deg(d.ref_heading)
+            rows.setdefault(name, {})[part] = round(heading_rmse_deg(o["heading_deg"], ref), 2)
+            e = wrap_deg(o["heading_deg"] - ref)
+            rows[name][f"{part}_final_error"] = round(float(e[-1]), 2)
+    return rows, outs
+
+
+def _husky_gps_check(gps: _GpsFixes, val, variants: dict, outs: dict) -> dict:
+    """Independent check: GPS course over ground on straight stretches of the validation part."""
+    tv = np.asarray(val.inputs.time_s)
+    in_val = gps.t >= tv[0]
+    fix = (gps.t[in_val], gps.east[in_val], gps.north[in_val], gps.t_all, gps.odo_yaw)
+    checks = {"imu_reference": gps_course_check(tv, np.rad2deg(val.ref_heading), *fix)}
+    for name in variants:
+        checks[f"odometer_{name}"] = gps_course_check(tv, outs[(name, "validate")]["heading_deg"], *fix)
+    return checks
+
+
+def _husky_course_scales(gps: _GpsFixes, columns, drive, variants: dict, config) -> dict:
+    """Whole drive: which scale of each heading's turn angles fits the GPS course (block bootstrap CI)."""
+    from .estimate import estimate_drive
+
+    sources = {"imu_reference": np.rad2deg(drive.ref_heading), "controller_odometry": columns["odom_heading_deg"],
+               "imu_gyro_integral": columns["gyro_heading_deg"]}
+    for name, (params, _rep) in variants.items():
+        sources[f"odometer_{name}"] = estimate_drive(params, drive, config)["heading_deg"]
+    return {name: course_scale_fit(gps.t_all, h_deg, gps.t, gps.east, gps.north, gps.t_all, gps.odo_yaw,
+                                   bootstrap=200)
+            for name, h_deg in sources.items()}
+
+
+_HUSKY_COLORS = {"nominal": "C0", "identified": "C3", "identified_wide_T_R_prior": "C2"}
+_HUSKY_LABELS = {"nominal": "nominal", "identified": "identified (T_R prior 5 %)",
+                 "identified_wide_T_R_prior": f"identified (T_R prior {HUSKY_WIDE_TR_PRIOR:.0%})"}
+
+
+def _unwrap_deg(a):
+    """Angles in degrees, unwrapped."""
+    return np.rad2deg(np.unwrap(np.deg2rad(a)))
+
+
+def _plot_husky_headings(ax, drive, variants: dict, config, gps: _GpsFixes) -> None:
+    """The whole drive's headings, unwrapped: IMU yaw, each variant's odometer, the GPS course."""
+    from .estimate import estimate_drive
+
+    t = gps.t_all
+    ref = np.rad2deg(drive.ref_heading)
+    ax.plot(t, _unwrap_deg(ref), color="k", lw=1.5, label="IMU yaw (reference)")
+    for name, (params, _rep) in variants.items():
+        o = estimate_drive(params, drive, config)
+        ax.plot(t, _unwrap_deg(o["heading_deg"]), color=_HUSKY_COLORS[name], lw=1,
+                label=f"odometer, {_HUSKY_LABELS[name]}: T_R = {float(params.T_R):.3f} m")
+    span = 15
+    fix_t, fe, fn = gps.t, gps.east, gps.north
+    de, dn = fe[span:] - fe[:-span], fn[span:] - fn[:-span]
+    tc = 0.5 * (fix_t[span:] + fix_t[:-span])
+    ok = np.hypot(de, dn) >= 0.4 * (fix_t[span:] - fix_t[:-span])
+    course = np.rad2deg(np.arctan2(de, dn))[ok]
+    near = np.interp(tc[ok], t, _unwrap_deg(ref))
+    ax.plot(tc[ok], near + wrap_deg(course - near), ".", ms=2.5, color="0.55",
+            label="GPS course over ground (6 s baseline)")
+
+
+def _plot_husky_errors(ax, variants: dict, outs: dict, rows: dict, train, val, train_fraction: float) -> None:
+    """Each variant's odometer error against the IMU yaw, the train part faded (restarted at the split)."""
+    for name in variants:
+        for part, d, alpha in (("train", train, 0.45), ("validate", val, 1.0)):
+            o = outs[(name, part)]
+            lab = (f"{_HUSKY_LABELS[name]}: RMSE {rows[name]['train']:.2f}° (first {train_fraction:.0%}), "
+                   f"{rows[name]['validate']:.2f}° (last {1 - train_fraction:.0%})") if part == "validate" else None
+            ax.plot(np.asarray(d.inputs.time_s), wrap_deg(o["heading_deg"] - np.rad2deg(d.ref_heading)),
+                    color=_HUSKY_COLORS[name], alpha=alpha, lw=1, label=lab)
+
+
+def _husky_figure(path: Path, drive, train, val, variants: dict, outs: dict, rows: dict, gps: _GpsFixes, config,
+                  train_fraction: float) -> None:
+    """husky_identification.png: headings over the whole drive, and the odometer errors."""
+    from .plots import pyplot, save_figure
+
+    plt = pyplot()
+    fig, ax = plt.subplots(2, 1, figsize=(10, 8.5), sharex=True)
+    _plot_husky_headings(ax[0], drive, variants, config, gps)
+    for a_ in ax:
+        a_.axvline(float(np.asarray(val.inputs.time_s)[0]), color="0.3", lw=1, ls=":")
+    ax[0].set_ylabel("heading [deg, unwrapped]")
+    ax[0].set_title(f"Husky test1.bag: T_R and a identified on the first {train_fraction:.0%} "
+                    f"(left of the dotted line)")
+    ax[0].legend(fontsize=7, loc="upper left")
+    _plot_husky_errors(ax[1], variants, outs, rows, train, val, train_fraction)
+    ax[1].set_ylabel("odometer - IMU yaw [deg]\n(restarted at the split)")
+    ax[1].set_xlabel("time [s]")
+    ax[1].legend(fontsize=8)
+    save_figure(fig, path, dpi=90)
+
+
+def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter: int = 300,
+                         train_fraction: float = 0.6) -> dict[str, Any]:
+    """The Husky experiment of docs/real-data.md: T_R and a identified on the first ``train_fraction`` of
+    test1.bag (default and wide T_R prior), checked against the IMU yaw on the rest and against the GPS
+    course; writes the parameter files and husky_identification.png, returns the numbers."""
+    import jaxmodel
+    from .drive_log import drive_from_columns
 
     bag = Path(real_dir) / "husky_test1" / "test1.bag"
     columns, report = import_husky(bag)
@@ -177,105 +330,17 @@ def run_husky_experiment(real_dir: Path, out_dir: Path, img_dir: Path, max_iter:
     # of a on (its gates - 15-45 mph - never open at the Husky's <= 1 m/s), left/right calibration
     # off (the identification's default; on this drive it leaves dpp_ratio at 1.0 anyway).
     config = jaxmodel.Config(mode="odometer", refine_a=True, calibration=False)
-    variants = {"nominal": (nominal, None)}
-    fits = {"identified": None, "identified_wide_T_R_prior": {"T_R": HUSKY_WIDE_TR_PRIOR}}
-    res["fits"] = {}
-    for name, prior in fits.items():
-        t0 = time.perf_counter()
-        fitted, fit_report = identify([train], nominal, fit=("T_R", "a"), validate_drives=[val], mode="odometer",
-                                      max_iter=max_iter, progress=sys.stderr.isatty(), config=config,
-                                      prior_std=prior)
-        variants[name] = (fitted, fit_report)
-        res["fits"][name] = {
-            "prior_std_log_T_R": (prior or {}).get("T_R", 0.05), "wall_s": round(time.perf_counter() - t0, 1),
-            "T_R": float(fitted.T_R), "a": float(fitted.a),
-            "T_R_std_error": fit_report["parameters"]["T_R"]["std_error"],
-            "T_R_status": fit_report["parameters"]["T_R"]["status"],
-            "a_status": fit_report["parameters"]["a"]["status"],
-            "iterations": fit_report["iterations"], "warnings": fit_report["warnings"],
-            "drives": fit_report["drives"]}
-        out_dir.mkdir(parents=True, exist_ok=True)
-        jaxmodel.save_params(out_dir / f"husky.{name}.params.json", fitted,
-                             report={"identify": fit_report, "import": report})
+    fits, res["fits"] = _husky_fits(train, val, nominal, config, max_iter, out_dir, report)
+    variants = {"nominal": (nominal, None), **fits}
     res["nominal"] = {"T_R": float(nominal.T_R), "a": float(nominal.a)}
-
-    rows: dict[str, dict[str, float]] = {}
-    outs = {}
-    for name, (params, _rep) in variants.items():
-        for part, d in (("train", train), ("validate", val)):
-            o = estimate_drive(params, d, config)
-            outs[(name, part)] = o
-            ref = np.rad2deg(d.ref_heading)
-            rows.setdefault(name, {})[part] = round(heading_rmse_deg(o["heading_deg"], ref), 2)
-            e = wrap_deg(o["heading_deg"] - ref)
-            rows[name][f"{part}_final_error"] = round(float(e[-1]), 2)
+    rows, outs = _husky_rmse(variants, train, val, config)
     res["odometer_rmse_vs_imu_deg"] = rows
-
-    # Independent check: GPS course over ground on straight stretches of the validation part.
-    t_all = np.asarray(columns["time_s"])
-    fv = np.asarray(columns["fix_valid"]) > 0
-    fix_t, fe, fn = t_all[fv], np.asarray(columns["fix_east_m"])[fv], np.asarray(columns["fix_north_m"])[fv]
-    tv = np.asarray(val.inputs.time_s)
-    in_val = fix_t >= tv[0]
-    odo_yaw = -np.unwrap(np.deg2rad(columns["odom_heading_deg"]))
-    ref_all_deg = np.rad2deg(drive.ref_heading)
-    gps = {"imu_reference": gps_course_check(tv, np.rad2deg(val.ref_heading), fix_t[in_val], fe[in_val], fn[in_val],
-                                             t_all, odo_yaw)}
-    for name in variants:
-        gps[f"odometer_{name}"] = gps_course_check(tv, outs[(name, "validate")]["heading_deg"], fix_t[in_val],
-                                                   fe[in_val], fn[in_val], t_all, odo_yaw)
-    res["gps_course_check_validate"] = gps
-    # Whole drive: which scale of each heading's turn angles fits the GPS course (block bootstrap CI).
-    sources = {"imu_reference": ref_all_deg, "controller_odometry": columns["odom_heading_deg"],
-               "imu_gyro_integral": columns["gyro_heading_deg"]}
-    for name, (params, _rep) in variants.items():
-        sources[f"odometer_{name}"] = estimate_drive(params, drive, config)["heading_deg"]
-    res["gps_course_scale_fit_whole_drive"] = {
-        name: course_scale_fit(t_all, h_deg, fix_t, fe, fn, t_all, odo_yaw, bootstrap=200)
-        for name, h_deg in sources.items()}
+    gps = _gps_fixes(columns)
+    res["gps_course_check_validate"] = _husky_gps_check(gps, val, variants, outs)
+    res["gps_course_scale_fit_whole_drive"] = _husky_course_scales(gps, columns, drive, variants, config)
     (out_dir / "husky.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
-
-    from .plots import pyplot, save_figure
-
-    plt = pyplot()
-
-    colors = {"nominal": "C0", "identified": "C3", "identified_wide_T_R_prior": "C2"}
-    labels = {"nominal": "nominal", "identified": "identified (T_R prior 5 %)",
-              "identified_wide_T_R_prior": f"identified (T_R prior {HUSKY_WIDE_TR_PRIOR:.0%})"}
-    t = t_all
-    ref = np.rad2deg(drive.ref_heading)
-    unwrap_deg = lambda a: np.rad2deg(np.unwrap(np.deg2rad(a)))  # noqa: E731
-    fig, ax = plt.subplots(2, 1, figsize=(10, 8.5), sharex=True)
-    ax[0].plot(t, unwrap_deg(ref), color="k", lw=1.5, label="IMU yaw (reference)")
-    for name, (params, _rep) in variants.items():
-        o = estimate_drive(params, drive, config)
-        ax[0].plot(t, unwrap_deg(o["heading_deg"]), color=colors[name], lw=1,
-                   label=f"odometer, {labels[name]}: T_R = {float(params.T_R):.3f} m")
-    span = 15
-    de, dn = fe[span:] - fe[:-span], fn[span:] - fn[:-span]
-    tc = 0.5 * (fix_t[span:] + fix_t[:-span])
-    ok = np.hypot(de, dn) >= 0.4 * (fix_t[span:] - fix_t[:-span])
-    course = np.rad2deg(np.arctan2(de, dn))[ok]
-    near = np.interp(tc[ok], t, unwrap_deg(ref))
-    ax[0].plot(tc[ok], near + wrap_deg(course - near), ".", ms=2.5, color="0.55",
-               label="GPS course over ground (6 s baseline)")
-    for a_ in ax:
-        a_.axvline(float(tv[0]), color="0.3", lw=1, ls=":")
-    ax[0].set_ylabel("heading [deg, unwrapped]")
-    ax[0].set_title(f"Husky test1.bag: T_R and a identified on the first {train_fraction:.0%} "
-                    f"(left of the dotted line)")
-    ax[0].legend(fontsize=7, loc="upper left")
-    for name in variants:
-        for part, d, alpha in (("train", train, 0.45), ("validate", val, 1.0)):
-            o = outs[(name, part)]
-            lab = (f"{labels[name]}: RMSE {rows[name]['train']:.2f}° (first {train_fraction:.0%}), "
-                   f"{rows[name]['validate']:.2f}° (last {1 - train_fraction:.0%})") if part == "validate" else None
-            ax[1].plot(np.asarray(d.inputs.time_s), wrap_deg(o["heading_deg"] - np.rad2deg(d.ref_heading)),
-                       color=colors[name], alpha=alpha, lw=1, label=lab)
-    ax[1].set_ylabel("odometer - IMU yaw [deg]\n(restarted at the split)")
-    ax[1].set_xlabel("time [s]")
-    ax[1].legend(fontsize=8)
-    save_figure(fig, img_dir / "husky_identification.png", dpi=90)
+    _husky_figure(img_dir / "husky_identification.png", drive, train, val, variants, outs, rows, gps, config,
+                  train_fraction)
     return res
 
 
