@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -221,19 +222,49 @@ def write_distribution_plot(path: Path, rows: list[dict], labels: list[str], sta
     return path
 
 
-def main(args) -> int:
-    """``odocompass fleet identify`` (see the module docstring)."""
-    import ray
+@dataclass
+class _Fleet:
+    """The driver's run once its inputs are checked (step 1); ``rows`` fills as vehicles finish."""
+    manifest: Path
+    params_path: str              # the start file as given (--params)
+    vehicles: dict[str, ManifestVehicle]
+    out_dir: Path
+    start_dict: dict
+    keys: tuple
+    options: dict
+    labels: list[str]
+    fps: dict[str, str] = field(default_factory=dict)
+    rows: dict[str, dict] = field(default_factory=dict)
 
+
+def _fit_options(args) -> dict:
+    """The FitOptions fields the command line sets (part of the fingerprint)."""
+    return dict(mode=args.mode, max_iter=args.max_iter, refine_a=args.refine_a == "on",
+                calibration=args.calibration == "on", increment_s=float(args.increment_s),
+                direction=args.optimizer)
+
+
+def _check_no_overwrite(out_dir: Path, inputs: list, vehicles: dict[str, ManifestVehicle]) -> None:
+    """OutputError when an output of the run (summary, plot, a vehicle's file) is one of the inputs."""
+    from .outputs import OutputError, same_file
+
+    drive_paths = [p for v in vehicles.values() for p, _ in v.drives]
+    for name in ["summary.csv", "summary.parquet", "parameters.png"] + [f"{vid}.json" for vid in vehicles]:
+        target = out_dir / name
+        for what, inp in inputs + [("the drive log", p) for p in drive_paths]:
+            if target.exists() and same_file(target, inp):
+                raise OutputError(f"{target}: --out would write over {what} {inp}; choose another folder")
+
+
+def _checked_inputs(args) -> _Fleet:
+    """Step 1: the manifest, the start file, the fit set and ``--out``, checked before any work; creates
+    ``--out``."""
     import jaxmodel
 
-    from . import console
     from . import loss as L
     from .diagnostics import checked_params
-    from .report import json_safe, zero_start_warnings
-    from .outputs import OutputError, check_output_dir, same_file
+    from .outputs import check_output_dir
 
-    t0 = time.perf_counter()
     manifest = Path(args.manifest)
     vehicles = read_manifest(manifest)
     start, _extra = checked_params(args.params)
@@ -245,86 +276,133 @@ def main(args) -> int:
     out_dir = Path(args.out)
     inputs = [("the manifest", manifest), ("the parameter file", args.params)]
     check_output_dir(out_dir, inputs=inputs, label="--out")
-    drive_paths = [p for v in vehicles.values() for p, _ in v.drives]
-    for name in ["summary.csv", "summary.parquet", "parameters.png"] + [f"{vid}.json" for vid in vehicles]:
-        target = out_dir / name
-        for what, inp in inputs + [("the drive log", p) for p in drive_paths]:
-            if target.exists() and same_file(target, inp):
-                raise OutputError(f"{target}: --out would write over {what} {inp}; choose another folder")
+    _check_no_overwrite(out_dir, inputs, vehicles)
     out_dir.mkdir(parents=True, exist_ok=True)
+    return _Fleet(manifest, args.params, vehicles, out_dir, jaxmodel.params_to_dict(start), keys, _fit_options(args),
+                  list(space.labels))
 
-    start_dict = jaxmodel.params_to_dict(start)
-    options = dict(mode=args.mode, max_iter=args.max_iter, refine_a=args.refine_a == "on",
-                   calibration=args.calibration == "on", increment_s=float(args.increment_s),
-                   direction=args.optimizer)
-    settings = _settings(start_dict, keys, options)
-    labels = list(space.labels)
-    rows: dict[str, dict] = {}
+
+def _resume(fleet: _Fleet) -> list[ManifestVehicle]:
+    """Step 2: the summary rows of the vehicles already finished with the same fingerprint; the others,
+    still to fit."""
+    from . import console
+
+    settings = _settings(fleet.start_dict, fleet.keys, fleet.options)
     todo: list[ManifestVehicle] = []
-    fps: dict[str, str] = {}
-    for vid, veh in vehicles.items():
-        fps[vid] = fingerprint(veh, settings)
-        report = _finished(out_dir / f"{vid}.json", fps[vid])
+    for vid, veh in fleet.vehicles.items():
+        fleet.fps[vid] = fingerprint(veh, settings)
+        report = _finished(fleet.out_dir / f"{vid}.json", fleet.fps[vid])
         if report is not None:
-            rows[vid] = summary_row(vid, report["fleet"]["status"], report, None, len(veh.train), len(veh.validate),
-                                    labels, resumed=True)
+            fleet.rows[vid] = summary_row(vid, report["fleet"]["status"], report, None, len(veh.train),
+                                          len(veh.validate), fleet.labels, resumed=True)
         else:
             todo.append(veh)
-    resumed = len(rows)
-    if resumed:
-        console.info(f"resuming: {resumed} of {len(vehicles)} vehicles already finished in {out_dir}, skipped")
+    if fleet.rows:
+        console.info(f"resuming: {len(fleet.rows)} of {len(fleet.vehicles)} vehicles already finished in "
+                     f"{fleet.out_dir}, skipped")
+    return todo
 
-    def record(vid: str, status: str, params: dict | None, report: dict | None, error: str | None):
-        veh = vehicles[vid]
-        if status != "error":
-            fitted = jaxmodel.make_params(params)
-            try:
-                jaxmodel.validate_params(fitted)
-            except jaxmodel.ParameterError as exc:
-                status, error, report = "error", f"the fitted parameters are not valid: {_one_line(exc)}", None
-            else:
-                report["warnings"] = (report.pop("drive_warnings", []) + zero_start_warnings(report, args.params)
-                                      + report["warnings"])
-                status = "warning" if report["warnings"] else "ok"
-                report["start_file"] = str(args.params)
-                report["fleet"] = {"vehicle_id": vid, "status": status, "fingerprint": fps[vid],
-                                   "manifest": str(manifest), "manifest_rows": veh.rows}
-                jaxmodel.save_params(out_dir / f"{vid}.json", fitted, json_safe(report))
-        if status == "error":
-            console.warn(f"vehicle {vid}: error: {error}")
-        rows[vid] = summary_row(vid, status, report, error, len(veh.train), len(veh.validate), labels)
+
+def _save_fit(fleet: _Fleet, vid: str, params: dict, report: dict) -> str | None:
+    """Step 4 for a fitted vehicle: its warnings and fleet status into ``report`` and its parameter file
+    written; instead the error line when the fitted parameters are not valid."""
+    import jaxmodel
+
+    from .report import json_safe, zero_start_warnings
+
+    fitted = jaxmodel.make_params(params)
+    try:
+        jaxmodel.validate_params(fitted)
+    except jaxmodel.ParameterError as exc:
+        return f"the fitted parameters are not valid: {_one_line(exc)}"
+    report["warnings"] = (report.pop("drive_warnings", []) + zero_start_warnings(report, fleet.params_path)
+                          + report["warnings"])
+    status = "warning" if report["warnings"] else "ok"
+    report["start_file"] = str(fleet.params_path)
+    report["fleet"] = {"vehicle_id": vid, "status": status, "fingerprint": fleet.fps[vid],
+                       "manifest": str(fleet.manifest), "manifest_rows": fleet.vehicles[vid].rows}
+    jaxmodel.save_params(fleet.out_dir / f"{vid}.json", fitted, json_safe(report))
+    return None
+
+
+def _record(fleet: _Fleet, vid: str, status: str, params: dict | None, report: dict | None, error: str | None):
+    """A vehicle's result: its parameter file (unless error) and its summary row."""
+    from . import console
+
+    veh = fleet.vehicles[vid]
+    if status != "error":
+        invalid = _save_fit(fleet, vid, params, report)
+        if invalid:
+            status, error, report = "error", invalid, None
+        else:
+            status = report["fleet"]["status"]
+    if status == "error":
+        console.warn(f"vehicle {vid}: error: {error}")
+    fleet.rows[vid] = summary_row(vid, status, report, error, len(veh.train), len(veh.validate), fleet.labels)
+
+
+def _on_result(fleet: _Fleet, payload: dict, result) -> None:
+    """A task's results recorded; a task that failed as a whole marks each of its vehicles ``error``."""
+    if isinstance(result, BaseException):
+        line = fleet_ray.task_error_line(result)
+        for vid, _, _ in payload["vehicles"]:
+            _record(fleet, vid, "error", None, None, f"task failed: {line}")
+        return
+    for r in result:
+        _record(fleet, r["vehicle_id"], r["status"], r.get("params"), r.get("report"), r.get("error"))
+
+
+def _fit_on_ray(fleet: _Fleet, todo: list[ManifestVehicle], args) -> float:
+    """Step 3: the vehicles to fit, sorted by the size of their logs and cut into tasks of ``--batch``,
+    fitted on Ray, each result recorded as it returns; the wall time of the fits."""
+    import ray
+
+    from . import console
 
     batch = max(1, int(args.batch))
     todo.sort(key=lambda v: v.size_hint())
     chunks = [todo[i:i + batch] for i in range(0, len(todo), batch)]
     payloads = [{"vehicles": [(v.vehicle_id, [str(p) for p in v.train], [str(p) for p in v.validate]) for v in c],
-                 "start": start_dict, "keys": list(keys), "options": options, "pad_to": batch} for c in chunks]
-
-    def on_result(payload, result):
-        if isinstance(result, BaseException):
-            line = fleet_ray.task_error_line(result)
-            for vid, _, _ in payload["vehicles"]:
-                record(vid, "error", None, None, f"task failed: {line}")
-            return
-        for r in result:
-            record(r["vehicle_id"], r["status"], r.get("params"), r.get("report"), r.get("error"))
-
+                 "start": fleet.start_dict, "keys": list(fleet.keys), "options": fleet.options, "pad_to": batch}
+                for c in chunks]
     t_fit = time.perf_counter()
     if payloads:
         with fleet_ray.cluster(args.address, args.workers) as in_flight:
             remote = ray.remote(num_cpus=1, max_retries=fleet_ray.MAX_RETRIES)(identify_task)
             console.status(f"fitting {len(todo)} vehicles in {len(payloads)} tasks of up to {batch} on "
                            f"{in_flight} workers")
-            fleet_ray.run_tasks(remote, payloads, in_flight, [len(c) for c in chunks], on_result,
-                                "fleet identify", console.progress_enabled())
-    fit_wall = time.perf_counter() - t_fit
-    ordered = [rows[vid] for vid in vehicles]
-    paths = write_summary(out_dir, ordered)
+            fleet_ray.run_tasks(remote, payloads, in_flight, [len(c) for c in chunks],
+                                lambda payload, result: _on_result(fleet, payload, result), "fleet identify",
+                                console.progress_enabled())
+    return time.perf_counter() - t_fit
+
+
+def _write_outputs(fleet: _Fleet, ordered: list[dict]) -> tuple[list[Path], Path | None]:
+    """Step 5's files: the summary tables and the distribution plot (whose failure is only a warning)."""
+    from . import console
+
+    paths = write_summary(fleet.out_dir, ordered)
     try:
-        plot = write_distribution_plot(out_dir / "parameters.png", ordered, labels, start_dict)
+        plot = write_distribution_plot(fleet.out_dir / "parameters.png", ordered, fleet.labels, fleet.start_dict)
     except Exception as exc:  # noqa: BLE001 - a plot never loses the fleet's results
         plot = None
-        console.warn(f"{out_dir / 'parameters.png'}: plot not written: {_one_line(exc)}")
+        console.warn(f"{fleet.out_dir / 'parameters.png'}: plot not written: {_one_line(exc)}")
+    return paths, plot
+
+
+def main(args) -> int:
+    """``odocompass fleet identify`` (see the module docstring)."""
+    import ray  # noqa: F401 - imported before any check, as always: a missing Ray fails at once
+
+    from . import console
+
+    t0 = time.perf_counter()
+    fleet = _checked_inputs(args)
+    todo = _resume(fleet)
+    resumed = len(fleet.rows)
+    fit_wall = _fit_on_ray(fleet, todo, args)
+    ordered = [fleet.rows[vid] for vid in fleet.vehicles]
+    paths, plot = _write_outputs(fleet, ordered)
     counts = {s: sum(r["status"] == s for r in ordered) for s in ("ok", "warning", "error")}
     rate = len(todo) / fit_wall * 60.0 if todo and fit_wall > 0 else float("nan")
     console.info(f"fleet identify: {len(ordered)} vehicles: {counts['ok']} ok, {counts['warning']} warning, "
