@@ -348,17 +348,17 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
 RELEASE_DISAGREEMENT_DEG = 20.0
 """beta^ is also released (``released_rate_variance``) while the course's running disagreement with the compass
 exceeds this and the rate filter's rate is significant."""
-RELEASE_MIN_RATE = 2e-4
-"""... and larger than this (rad/m): twice filter_follow_show_rate, beyond the 50-110 µrad/m that slow compass
-errors on hills fake (without it, matrix highway/hills/105 in the Kalman mode 4.03 -> 5.54 deg)."""
+RELEASE_SHOW_RATES = 2.0
+"""... and larger than this many filter_follow_show_rate (2e-4 rad/m by default), beyond the 50-110 µrad/m that slow
+compass errors on hills fake (without it, matrix highway/hills/105 in the Kalman mode 4.03 -> 5.54 deg)."""
 
 
 def released_rate_variance(params, rate_filter, ks):
     """The variance (rad^2/m^2) beta^, the wheel course's rate per metre, is released to this sample: the rate
     filter's beta^2 + its variance while that filter's drift is large (``offset_filter.large_drift``: a tyre
-    mismatch, captured into the ratio), or while it is significant (``offset_filter.drifting_significantly``) and
-    the course has run RELEASE_DISAGREEMENT_DEG away from the compass (``ks.disagreement``, before this sample);
-    else 0 (beta^ keeps its own).
+    mismatch, captured into the ratio), or while it is significant (``offset_filter.drifting_significantly``),
+    larger than RELEASE_SHOW_RATES x filter_follow_show_rate, and the course has run RELEASE_DISAGREEMENT_DEG away
+    from the compass (``ks.disagreement``, before this sample); else 0 (beta^ keeps its own).
 
     US 4,680,715 is silent on a rate it does not model.  A drift too small to be large is left to the ramp eps
     (rad/s), which the soft gate keeps from learning it once the course is far off: a hidden tyre mismatch of
@@ -367,7 +367,7 @@ def released_rate_variance(params, rate_filter, ks):
     (docs/tuning.md, stop 57)."""
     release = large_drift(params, rate_filter) | (
         drifting_significantly(params, rate_filter)
-        & (jnp.abs(rate_filter.beta) > RELEASE_MIN_RATE)
+        & (jnp.abs(rate_filter.beta) > RELEASE_SHOW_RATES * params.filter_follow_show_rate)
         & (jnp.abs(ks.disagreement) > deg(RELEASE_DISAGREEMENT_DEG)))
     return jnp.where(release, rate_filter.beta ** 2 + rate_filter.p11, 0.0)
 
