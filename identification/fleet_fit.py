@@ -394,17 +394,10 @@ def _record_stage(pv, v, stage, space, fit: _StageFit, n_drives, options: FitOpt
 
 def _parameter_rows(v, stage, space, fit: _StageFit) -> dict[str, dict]:
     """Report rows of the stage's parameters for vehicle ``v`` (identify's "parameters" entries)."""
+    from .identify import parameter_rows
+
     _, ratio, se, _ = fit.lap[v]
-    theta0 = space.theta(np.zeros(space.dim))
-    theta = space.theta(fit.z_final[v])
-    return {label: {
-        "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
-        "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
-        "prior_std_unconstrained": float(space.s[j]),
-        "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
-        "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(fit.signal[v][j]),
-        "status": fit.status[v][j], "stage": stage.name,
-    } for j, label in enumerate(space.labels)}
+    return parameter_rows(space, stage.name, fit.z_final[v], se, ratio, fit.signal[v], fit.status[v])
 
 
 def _stage_report(v, stage, space, fit: _StageFit, n_drives, iters, evals, options: FitOptions, t_stage) -> dict:

@@ -329,20 +329,9 @@ def _fit_one_stage(problem: _Problem, stage: Stage, current):
     # A key held at z = 0 (not identifiable) keeps its start exactly (P 0.125 once came back 0.12500000000000003).
     unmoved = {key: getattr(current, key) for key, _tr, sl in space._segments() if not np.any(z[sl])}
     current = space.to_params(jnp.asarray(z), current)._replace(**unmoved)
-    theta = space.theta(z)
-    theta0 = space.theta(np.zeros_like(z))
     iters = res.iterations + (res_final.iterations if res_final is not res else 0)
     evals = res.evaluations + (res_final.evaluations if res_final is not res else 0)
-    rows = {}
-    for j, label in enumerate(space.labels):
-        rows[label] = {
-            "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
-            "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
-            "prior_std_unconstrained": float(space.s[j]),
-            "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
-            "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[j]),
-            "status": status[j], "stage": stage.name,
-        }
+    rows = parameter_rows(space, stage.name, z, se, ratio, signal, status)
     stage_report = {
         "name": stage.name, "keys": list(stage.keys), "heading": stage.field_name,
         "estimator_mode": stage.mode, "reference": problem.reference, "loss": loss_text,
@@ -467,6 +456,22 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                      n_train=len(train))
     report["wall_time_s"] = time.perf_counter() - t_start
     return fitted, report
+
+
+def parameter_rows(space, stage_name, z, se, ratio, signal, status) -> dict[str, dict]:
+    """The report's "parameters" rows of one stage's coordinates (``identify`` and ``fleet_fit.fit_group``): start
+    and fitted value at the whitened coordinates ``z``, standard error ``se``, posterior-to-prior ratio ``ratio``,
+    whether the drives inform it (``signal``) and its verdict (``status``), per label of ``space``."""
+    theta = space.theta(z)
+    theta0 = space.theta(np.zeros_like(z))
+    return {label: {
+        "start": float(theta0[j]), "fitted": float(theta[j]), "std_error": float(se[j]),
+        "relative_change": float(theta[j] / theta0[j] - 1.0) if theta0[j] != 0 else None,
+        "prior_std_unconstrained": float(space.s[j]),
+        "transform": space.transforms[list(space.keys).index(label.split("[")[0])],
+        "posterior_to_prior_std": float(ratio[j]), "data_signal": bool(signal[j]),
+        "status": status[j], "stage": stage_name,
+    } for j, label in enumerate(space.labels)}
 
 
 def _field_circle_start(keys, field_circle, reference, inputs, sample_mask, start):
