@@ -175,7 +175,7 @@ def main(args) -> int:
     import ray
 
     from . import console
-    from .outputs import OutputError, check_output_dir, same_file
+    from .outputs import OutputError, check_folder_files, check_output_dir
 
     t0 = time.perf_counter()
     manifest = Path(args.manifest)
@@ -186,11 +186,8 @@ def main(args) -> int:
     out_dir = Path(args.out)
     check_output_dir(out_dir, inputs=[("the manifest", manifest), ("the parameter file or folder", params_arg)],
                      label="--out")
-    target = out_dir / "metrics.parquet"
-    for veh in vehicles.values():
-        for p, _ in veh.drives:
-            if target.exists() and same_file(target, p):
-                raise OutputError(f"{target}: --out would write over the drive log {p}; choose another folder")
+    check_folder_files(out_dir, ["metrics.parquet"],
+                       [("the drive log", p) for veh in vehicles.values() for p, _ in veh.drives])
     per_vehicle = _vehicle_params(params_arg, list(vehicles))
     items = []
     for vid, veh in vehicles.items():

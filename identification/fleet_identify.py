@@ -244,18 +244,6 @@ def _fit_options(args) -> dict:
                 direction=args.optimizer)
 
 
-def _check_no_overwrite(out_dir: Path, inputs: list, vehicles: dict[str, ManifestVehicle]) -> None:
-    """OutputError when an output of the run (summary, plot, a vehicle's file) is one of the inputs."""
-    from .outputs import OutputError, same_file
-
-    drive_paths = [p for v in vehicles.values() for p, _ in v.drives]
-    for name in ["summary.csv", "summary.parquet", "parameters.png"] + [f"{vid}.json" for vid in vehicles]:
-        target = out_dir / name
-        for what, inp in inputs + [("the drive log", p) for p in drive_paths]:
-            if target.exists() and same_file(target, inp):
-                raise OutputError(f"{target}: --out would write over {what} {inp}; choose another folder")
-
-
 def _checked_inputs(args) -> _Fleet:
     """Step 1: the manifest, the start file, the fit set and ``--out``, checked before any work; creates
     ``--out``."""
@@ -263,7 +251,7 @@ def _checked_inputs(args) -> _Fleet:
 
     from . import loss as L
     from .diagnostics import checked_params
-    from .outputs import check_output_dir
+    from .outputs import check_folder_files, check_output_dir
 
     manifest = Path(args.manifest)
     vehicles = read_manifest(manifest)
@@ -276,7 +264,9 @@ def _checked_inputs(args) -> _Fleet:
     out_dir = Path(args.out)
     inputs = [("the manifest", manifest), ("the parameter file", args.params)]
     check_output_dir(out_dir, inputs=inputs, label="--out")
-    _check_no_overwrite(out_dir, inputs, vehicles)
+    drives = [("the drive log", p) for v in vehicles.values() for p, _ in v.drives]
+    check_folder_files(out_dir, ["summary.csv", "summary.parquet", "parameters.png"]
+                       + [f"{vid}.json" for vid in vehicles], inputs + drives)
     out_dir.mkdir(parents=True, exist_ok=True)
     return _Fleet(manifest, args.params, vehicles, out_dir, jaxmodel.params_to_dict(start), keys, _fit_options(args),
                   list(space.labels))

@@ -124,6 +124,17 @@ def check_output_dir(path, inputs: Iterable = (), label: str = "--out-dir") -> P
     return path
 
 
+def check_folder_files(out_dir, names: Iterable[str], inputs: Iterable, label: str = "--out") -> None:
+    """OutputError when a file ``names`` that a command writes into ``out_dir`` already exists as one of ``inputs``
+    ((description, path) pairs): the fleet commands' tables and files beside the logs they read."""
+    inputs = list(inputs)
+    for name in names:
+        target = Path(out_dir) / name
+        for what, inp in inputs:
+            if target.exists() and same_file(target, inp):
+                raise OutputError(f"{target}: {label} would write over {what} {inp}; choose another folder")
+
+
 def check_drive_outputs(drive, companions=None, inputs: Iterable = ()) -> list[Path]:
     """``check_output_file`` for a drive log (known extension) and the files written beside it;
     ``companions(drive)`` gives their paths (truth files, a parameter file).  Returns

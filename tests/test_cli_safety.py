@@ -280,6 +280,23 @@ def test_output_checks_create_nothing(tmp_path):
         outputs.check_output_file(hard, inputs=[("the drive log", tmp_path / "orig.csv")])
 
 
+def test_a_fleet_output_that_is_an_input_log_is_refused_before_any_work(tmp_path):
+    """``outputs.check_folder_files`` (fleet identify and fleet evaluate): a table the command would write into
+    --out that is already one of its drive logs (here through a hard link) is refused by name; absent or other
+    files pass, and nothing is created."""
+    out = tmp_path / "out"
+    out.mkdir()
+    log = tmp_path / "drive.csv"
+    log.write_text("x\n")
+    os.link(log, out / "summary.csv")
+    outputs.check_folder_files(out, ["metrics.parquet", "car.json"], [("the drive log", log)])
+    with pytest.raises(outputs.OutputError, match=r"summary\.csv: --out would write over the drive log .*drive\.csv; "
+                                                  r"choose another folder"):
+        outputs.check_folder_files(out, ["summary.parquet", "summary.csv"], [("the manifest", tmp_path / "m.csv"),
+                                                                             ("the drive log", log)])
+    assert sorted(p.name for p in out.iterdir()) == ["summary.csv"]
+
+
 def test_save_params_is_atomic_and_refuses_nan_before_touching_the_file(tmp_path):
     path = tmp_path / "p.json"
     jm.save_params(path, jm.make_params())
