@@ -136,43 +136,37 @@ class _Emitter:
         return self.run(closed_jaxpr.jaxpr, consts, args)
 
     def eqn(self, eqn, ins: list[np.ndarray]) -> list[np.ndarray]:
+        """The output arrays of one jaxpr equation, from its input arrays."""
         name = eqn.primitive.name
-        p = eqn.params
-        out_avals = [v.aval for v in eqn.outvars]
-        in_avals = [v.aval for v in eqn.invars]
-
-        # -- calls: inline ---------------------------------------------------------------------
         if name in _CALL_PRIMS:
-            sub = p.get("jaxpr") or p.get("call_jaxpr") or p.get("fun_jaxpr")
-            if sub is None:
-                raise Unsupported(f"call primitive {name} without a jaxpr")
-            if hasattr(sub, "consts"):
-                return self.closed(sub, ins)
-            return self.run(sub, [], ins)
+            return self._inline_call(eqn, ins)
+        kind = _kind(eqn.outvars[0].aval.dtype) if eqn.outvars else "float"
+        # elementwise first: besides its own primitives, it refuses an unsupported input dtype for all the others
+        for lower_family in (self._elementwise_eqn, self._shape_eqn, self._array_eqn, self._control_eqn):
+            outs = lower_family(eqn, ins, kind)
+            if outs is not None:
+                return outs
+        raise Unsupported(f"primitive {name!r}")
 
-        kind = _kind(out_avals[0].dtype) if out_avals else "float"
+    # -- one family of primitives each: the outputs, or None when ``eqn`` is not of the family ------
+    def _inline_call(self, eqn, ins):
+        """Call primitives (jit, pjit, custom_jvp_call, ...): the called jaxpr lowered in place."""
+        name, p = eqn.primitive.name, eqn.params
+        sub = p.get("jaxpr") or p.get("call_jaxpr") or p.get("fun_jaxpr")
+        if sub is None:
+            raise Unsupported(f"call primitive {name} without a jaxpr")
+        if hasattr(sub, "consts"):
+            return self.closed(sub, ins)
+        return self.run(sub, [], ins)
 
-        # -- elementwise -----------------------------------------------------------------------
+    def _elementwise_eqn(self, eqn, ins, kind):
+        """Elementwise primitives: comparisons, selections, conversions and the unary/binary arithmetic."""
+        name, p = eqn.primitive.name, eqn.params
+        in_avals = [v.aval for v in eqn.invars]
         if name in _COMPARE:
             return [self.elementwise(_COMPARE[name], ins, "bool")]
         if name == "select_n":
-            pred, cases = ins[0], ins[1:]
-            pkind = _kind(in_avals[0].dtype)
-            if len(cases) == 2 and pkind == "bool":
-                def simp(ops):
-                    c, a, b = ops
-                    if not isinstance(c, Ref):
-                        return b if c else a
-                    if a is b or (not isinstance(a, Ref) and not isinstance(b, Ref) and _lit(a) == _lit(b)):
-                        return a
-                    return None
-                return [self.elementwise(_SELECT2, [pred, *cases], kind, simp)]
-
-            def simp_n(ops):
-                if not isinstance(ops[0], Ref):
-                    return ops[1 + int(ops[0])]
-                return None
-            return [self.elementwise(_select_n(len(cases)), [pred, *cases], kind, simp_n)]
+            return [self._select_eqn(ins, _kind(in_avals[0].dtype), kind)]
         if name == "convert_element_type":
             src = _kind(in_avals[0].dtype)
             dst = _kind(p["new_dtype"])
@@ -193,8 +187,30 @@ class _Emitter:
             return [self.elementwise(unary[name], ins, kind)]
         if len(ins) == 2 and name in binary:
             return [self.elementwise(binary[name], ins, kind, _simplifier(name, kind))]
+        return None
 
-        # -- structure (no code) ---------------------------------------------------------------
+    def _select_eqn(self, ins, pred_kind, kind):
+        """``select_n``: the case picked by the predicate, folded when the predicate or the cases allow."""
+        pred, cases = ins[0], ins[1:]
+        if len(cases) == 2 and pred_kind == "bool":
+            def simp(ops):
+                c, a, b = ops
+                if not isinstance(c, Ref):
+                    return b if c else a
+                if a is b or (not isinstance(a, Ref) and not isinstance(b, Ref) and _lit(a) == _lit(b)):
+                    return a
+                return None
+            return self.elementwise(_SELECT2, [pred, *cases], kind, simp)
+
+        def simp_n(ops):
+            if not isinstance(ops[0], Ref):
+                return ops[1 + int(ops[0])]
+            return None
+        return self.elementwise(_select_n(len(cases)), [pred, *cases], kind, simp_n)
+
+    def _shape_eqn(self, eqn, ins, kind):
+        """Shape primitives (reshape, broadcast, slice, concatenate, transpose, pad, iota, ...): no code emitted."""
+        name, p = eqn.primitive.name, eqn.params
         if name == "reshape":
             if p.get("dimensions") not in (None, ()):
                 raise Unsupported("reshape with dimensions")
@@ -233,6 +249,11 @@ class _Emitter:
             dim = p["dimension"]
             vals = np.broadcast_to(np.arange(shape[dim]).reshape([-1 if i == dim else 1 for i in range(len(shape))]), shape)
             return [_const_array(vals, _kind(p["dtype"]))]
+        return None
+
+    def _array_eqn(self, eqn, ins, kind):
+        """Whole-array primitives (reductions, dot_general, scatter, gather, dynamic slices), by the helpers below."""
+        name, p = eqn.primitive.name, eqn.params
         if name in ("reduce_sum", "reduce_max", "reduce_min", "reduce_prod", "reduce_and", "reduce_or"):
             return [self.reduce(name, ins[0], tuple(p["axes"]), kind)]
         if name == "dot_general":
@@ -243,18 +264,21 @@ class _Emitter:
                 raise Unsupported(f"{name} with update_consts")
             return [self.scatter(name.replace("_", "-"), ins[0], ins[1], ins[2], p["dimension_numbers"], p["mode"], kind)]
         if name == "gather":
-            return [self.gather(ins[0], ins[1], p, tuple(out_avals[0].shape), kind)]
+            return [self.gather(ins[0], ins[1], p, tuple(eqn.outvars[0].aval.shape), kind)]
         if name == "dynamic_slice":
             return [self.dynamic_slice(ins[0], ins[1:], tuple(p["slice_sizes"]))]
         if name == "dynamic_update_slice":
             return [self.dynamic_update_slice(ins[0], ins[1], ins[2:])]
+        return None
 
-        # -- control flow ----------------------------------------------------------------------
+    def _control_eqn(self, eqn, ins, kind):
+        """Control flow: ``scan`` unrolled, ``cond`` folded or all branches selected by the index."""
+        name, p = eqn.primitive.name, eqn.params
         if name == "scan":
             return self.scan(p, ins)
         if name == "cond":
             return self.cond(p, ins)
-        raise Unsupported(f"primitive {name!r}")
+        return None
 
     # -- helpers for structured primitives ------------------------------------------------------
     def _chain(self, atoms, tpl, kind):
