@@ -43,90 +43,123 @@ def comma_hard_iron_offsets(columns, until_s: float) -> tuple[float, float]:
     return x0, y0
 
 
-def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[str, Any]:
+_COMMA_MODES = ("compass", "odometer", "complementary")
+
+
+def _comma_modes(pjson: dict[str, Any], drive) -> dict[str, dict]:
+    """The estimator's outputs on ``drive`` in each heading mode, with the parameter file ``pjson``."""
+    import jaxmodel
+    from .estimate import estimate_drive
+
+    params = jaxmodel.make_params(_flat(pjson))
+    return {m: estimate_drive(params, drive, jaxmodel.Config(mode=m)) for m in _COMMA_MODES}
+
+
+def _heading_change_error_end(wheel, ref) -> float:
+    """The wheel heading's change over the whole drive minus the reference's [deg, rounded]."""
+    return round(float(wrap_deg((wheel[-1] - wheel[0]) - (ref[-1] - ref[0]))), 2)
+
+
+def _comma_uncalibrated(raw: dict, ref) -> dict[str, Any]:
+    """Numbers of the uncalibrated run (X0 = Y0 = 0): each mode's RMSE and mean error against the pose, the
+    front-pair odometer's heading-change error and its final dpp_ratio."""
+    wheel = raw["odometer"]["wheel_heading_deg"]
+    rel = wrap_deg((wheel - wheel[0]) - (ref - ref[0]))
+    return {
+        "uncalibrated_rmse_deg": {m: round(heading_rmse_deg(o["heading_deg"], ref), 2) for m, o in raw.items()},
+        "uncalibrated_mean_error_deg": {m: round(float(np.mean(wrap_deg(o["heading_deg"] - ref))), 2)
+                                        for m, o in raw.items()},
+        "odometer_heading_change_error_deg": {"rms": round(float(np.sqrt(np.mean(rel ** 2))), 2),
+                                              "max_abs": round(float(np.max(np.abs(rel))), 2),
+                                              "end": round(float(rel[-1]), 2)},
+        "dpp_ratio_end": float(raw["odometer"]["dpp_ratio"][-1])}
+
+
+def _comma_axle_pairs(real_dir: Path, pjson: dict[str, Any], drive, ref) -> dict[str, Any]:
+    """The rear pair for comparison (the reason for the front default): the odometer's heading-change error
+    at the end from the rear wheels (calibration on and off) and from the front wheels (calibration off)."""
     import jaxmodel
     from .drive_log import drive_from_columns
     from .estimate import estimate_drive
 
-    columns, report = import_comma2k19(Path(real_dir) / "comma2k19_example")
-    pjson = comma2k19_params(report)
-    drive = drive_from_columns(columns, source="comma2k19")
-    t = np.asarray(columns["time_s"])
-    ref = columns["ref_heading_deg"]
-    modes = ("compass", "odometer", "complementary")
-    res: dict[str, Any] = {"import": report}
-
-    def run_modes(pdict, label):
-        params = jaxmodel.make_params(_flat(pdict))
-        outs = {m: estimate_drive(params, drive, jaxmodel.Config(mode=m)) for m in modes}
-        return outs
-
-    raw = run_modes(pjson, "uncalibrated")
-    res["uncalibrated_rmse_deg"] = {m: round(heading_rmse_deg(o["heading_deg"], ref), 2) for m, o in raw.items()}
-    res["uncalibrated_mean_error_deg"] = {m: round(float(np.mean(wrap_deg(o["heading_deg"] - ref))), 2)
-                                          for m, o in raw.items()}
-    wheel = raw["odometer"]["wheel_heading_deg"]
-    rel = wrap_deg((wheel - wheel[0]) - (ref - ref[0]))
-    res["odometer_heading_change_error_deg"] = {"rms": round(float(np.sqrt(np.mean(rel ** 2))), 2),
-                                                "max_abs": round(float(np.max(np.abs(rel))), 2),
-                                                "end": round(float(rel[-1]), 2)}
-    res["dpp_ratio_end"] = float(raw["odometer"]["dpp_ratio"][-1])
-
-    # Rear pair for comparison (the reason for the front default).
     rear_cols, rear_rep = import_comma2k19(Path(real_dir) / "comma2k19_example", axle="rear")
     rear_params = jaxmodel.make_params(_flat(comma2k19_params(rear_rep)))
     rear_drive = drive_from_columns(rear_cols, source="comma2k19 rear")
-    res["rear_pair_heading_change_error_end_deg"] = {}
+    rear = {}
     for cal in (True, False):
         o = estimate_drive(rear_params, rear_drive, jaxmodel.Config(mode="odometer", calibration=cal))
-        w = o["wheel_heading_deg"]
-        res["rear_pair_heading_change_error_end_deg"]["calibration_on" if cal else "calibration_off"] = round(
-            float(wrap_deg((w[-1] - w[0]) - (ref[-1] - ref[0]))), 2)
-    o = estimate_drive(jaxmodel.make_params(_flat(pjson)), drive,
-                       jaxmodel.Config(mode="odometer", calibration=False))
-    w = o["wheel_heading_deg"]
-    res["front_pair_heading_change_error_end_deg_calibration_off"] = round(
-        float(wrap_deg((w[-1] - w[0]) - (ref[-1] - ref[0]))), 2)
+        rear["calibration_on" if cal else "calibration_off"] = _heading_change_error_end(o["wheel_heading_deg"], ref)
+    front = estimate_drive(jaxmodel.make_params(_flat(pjson)), drive,
+                           jaxmodel.Config(mode="odometer", calibration=False))
+    return {"rear_pair_heading_change_error_end_deg": rear,
+            "front_pair_heading_change_error_end_deg_calibration_off":
+                _heading_change_error_end(front["wheel_heading_deg"], ref)}
 
-    # Hard-iron offsets from the first half (with the reference), evaluated on the second half.
+
+class _HardIron(NamedTuple):
+    """The hard-iron calibration of the comma2k19 drive and what it gives."""
+    pjson: dict[str, Any]         # the parameter file with X0, Y0
+    outs: dict[str, dict]         # the estimator's outputs per mode with it
+    half: float                   # X0, Y0 from time_s < half, evaluated after it [s]
+    results: dict[str, Any]       # the offsets and each mode's RMSE on the second half
+
+
+def _comma_hard_iron(columns, pjson: dict[str, Any], drive) -> _HardIron:
+    """Hard-iron offsets from the first half (with the reference), evaluated on the second half."""
+    t = np.asarray(columns["time_s"])
+    ref = columns["ref_heading_deg"]
     half = 0.5 * float(t[-1])
     x0, y0 = comma_hard_iron_offsets(columns, half)
     cal_json = dict(pjson, X0=x0, Y0=y0)
-    cal = run_modes(cal_json, "calibrated")
+    cal = _comma_modes(cal_json, drive)
     second = t >= half
-    res["hard_iron_offsets_uT"] = {"X0": round(x0, 2), "Y0": round(y0, 2), "from_s": [0.0, round(half, 1)]}
-    res["calibrated_rmse_second_half_deg"] = {
-        m: round(heading_rmse_deg(o["heading_deg"][second], ref[second]), 2) for m, o in cal.items()}
+    results = {"hard_iron_offsets_uT": {"X0": round(x0, 2), "Y0": round(y0, 2), "from_s": [0.0, round(half, 1)]},
+               "calibrated_rmse_second_half_deg": {
+                   m: round(heading_rmse_deg(o["heading_deg"][second], ref[second]), 2) for m, o in cal.items()}}
+    return _HardIron(cal_json, cal, half, results)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "comma2k19.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
-    (out_dir / "comma2k19.calibrated.params.json").write_text(json.dumps(cal_json, indent=2) + "\n")
 
-    # Figures.
+def _comma_headings_figure(path: Path, columns, raw: dict, hard_iron: _HardIron) -> None:
+    """comma2k19_headings.png: the headings, then each mode's error against the pose without and with
+    the hard-iron offsets."""
     from .plots import pyplot, save_figure
 
-    plt = pyplot()
-
-    fig, ax = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    t = np.asarray(columns["time_s"])
+    ref = columns["ref_heading_deg"]
+    wheel = raw["odometer"]["wheel_heading_deg"]
+    half = hard_iron.half
+    fig, ax = pyplot().subplots(3, 1, figsize=(9, 9), sharex=True)
     ax[0].plot(t, ref, label="reference (pose, camera axis)")
     ax[0].plot(t, columns["vel_heading_deg"], label="pose velocity direction")
     ax[0].plot(t, ref[0] + wrap_deg(wheel - wheel[0]), label="odometer (front pair), started at the reference")
     ax[0].set_ylabel("heading [deg]")
     ax[0].legend(fontsize=8)
     ax[0].set_title("comma2k19 RAV4 segment: headings")
-    for m in modes:
+    for m in _COMMA_MODES:
         ax[1].plot(t, wrap_deg(raw[m]["heading_deg"] - ref), label=f"{m} (X0 = Y0 = 0)")
     ax[1].set_ylabel("error vs pose [deg]")
     ax[1].legend(fontsize=8)
-    for m in modes:
-        ax[2].plot(t, wrap_deg(cal[m]["heading_deg"] - ref), label=f"{m} (X0, Y0 from 0-{half:.0f} s)")
+    for m in _COMMA_MODES:
+        ax[2].plot(t, wrap_deg(hard_iron.outs[m]["heading_deg"] - ref), label=f"{m} (X0, Y0 from 0-{half:.0f} s)")
     ax[2].axvspan(0.0, half, color="0.9", label="offset estimation span")
     ax[2].set_ylabel("error vs pose [deg]")
     ax[2].set_xlabel("time [s]")
     ax[2].legend(fontsize=8)
-    save_figure(fig, img_dir / "comma2k19_headings.png", dpi=90)
+    save_figure(fig, path, dpi=90)
 
-    # Levelling evidence: compass offset against the road's pitch.
+
+class _Levelling(NamedTuple):
+    """The comma2k19 magnetometer's heading offset from the pose, levelled three ways."""
+    t: np.ndarray                 # magnetometer sample times [s]
+    pitch: np.ndarray             # the pose's pitch and roll there [rad]
+    roll: np.ndarray
+    offsets: dict[str, tuple[np.ndarray, float]]   # variant: (magnetic heading - reference [deg],
+                                                   # its slope against pitch [deg/deg])
+
+
+def _comma_levelling(real_dir: Path) -> _Levelling:
+    """Levelling evidence: the compass offset against the road's pitch with z up (used), z down (the
+    README's axes) and not levelled."""
     arr = _load_comma(Path(real_dir) / "comma2k19_example")
     pose = comma_pose(arr)
     tm = arr["mag_t"]
@@ -136,22 +169,56 @@ def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[s
     variants = {"levelled, z up (used)": level(arr["mag_v"] @ COMMA_MAG_AXES.T, pitch, roll),
                 "levelled, z down (README axes)": level(arr["mag_v"], pitch, roll),
                 "not levelled": arr["mag_v"]}
-    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    res["levelling"] = {}
+    offsets = {}
     for name, v in variants.items():
         off = wrap_deg(np.rad2deg(np.arctan2(-v[:, 1], v[:, 0])) - refm)
-        slope = float(np.polyfit(np.rad2deg(pitch), off, 1)[0])
-        res["levelling"][name] = {"std_deg": round(float(np.std(off)), 2), "slope_deg_per_deg_pitch": round(slope, 2)}
+        offsets[name] = (off, float(np.polyfit(np.rad2deg(pitch), off, 1)[0]))
+    return _Levelling(tm, pitch, roll, offsets)
+
+
+def _comma_levelling_figure(path: Path, lev: _Levelling) -> None:
+    """comma2k19_levelling.png: each variant's offset (minus its mean), then the pose's pitch and roll."""
+    from .plots import pyplot, save_figure
+
+    tm = lev.t
+    fig, ax = pyplot().subplots(2, 1, figsize=(9, 6), sharex=True)
+    for name, (off, slope) in lev.offsets.items():
         ax[0].plot(tm - tm[0], off - np.mean(off), label=f"{name}: std {np.std(off):.2f}°, {slope:+.2f}°/° pitch")
     ax[0].set_ylabel("magnetic heading - reference\n(minus its mean) [deg]")
     ax[0].legend(fontsize=8)
     ax[0].set_title("comma2k19 magnetometer: which z sign levels the compass")
-    ax[1].plot(tm - tm[0], np.rad2deg(pitch), label="pitch (pose)")
-    ax[1].plot(tm - tm[0], np.rad2deg(roll), label="roll (pose)")
+    ax[1].plot(tm - tm[0], np.rad2deg(lev.pitch), label="pitch (pose)")
+    ax[1].plot(tm - tm[0], np.rad2deg(lev.roll), label="roll (pose)")
     ax[1].set_ylabel("[deg]")
     ax[1].set_xlabel("time [s]")
     ax[1].legend(fontsize=8)
-    save_figure(fig, img_dir / "comma2k19_levelling.png", dpi=90)
+    save_figure(fig, path, dpi=90)
+
+
+def run_comma_experiment(real_dir: Path, out_dir: Path, img_dir: Path) -> dict[str, Any]:
+    """The comma2k19 experiment of docs/real-data.md: the three heading modes on the RAV4 segment without
+    and with hard-iron offsets, the rear wheel pair for comparison, and the magnetometer's levelling;
+    writes the two parameter files and the two figures, returns the numbers."""
+    from .drive_log import drive_from_columns
+
+    columns, report = import_comma2k19(Path(real_dir) / "comma2k19_example")
+    pjson = comma2k19_params(report)
+    drive = drive_from_columns(columns, source="comma2k19")
+    ref = columns["ref_heading_deg"]
+    raw = _comma_modes(pjson, drive)
+    res: dict[str, Any] = {"import": report, **_comma_uncalibrated(raw, ref),
+                           **_comma_axle_pairs(real_dir, pjson, drive, ref)}
+    hard_iron = _comma_hard_iron(columns, pjson, drive)
+    res.update(hard_iron.results)
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "comma2k19.params.json").write_text(json.dumps(pjson, indent=2) + "\n")
+    (out_dir / "comma2k19.calibrated.params.json").write_text(json.dumps(hard_iron.pjson, indent=2) + "\n")
+    _comma_headings_figure(img_dir / "comma2k19_headings.png", columns, raw, hard_iron)
+    lev = _comma_levelling(real_dir)
+    res["levelling"] = {name: {"std_deg": round(float(np.std(off)), 2), "slope_deg_per_deg_pitch": round(slope, 2)}
+                        for name, (off, slope) in lev.offsets.items()}
+    _comma_levelling_figure(img_dir / "comma2k19_levelling.png", lev)
     return res
 
 
