@@ -307,3 +307,73 @@ def test_husky_identification_on_first_60_percent(husky):
     before = im.heading_rmse_deg(estimate_drive(nominal, val, config)["heading_deg"], np.rad2deg(val.ref_heading))
     after = im.heading_rmse_deg(estimate_drive(fitted, val, config)["heading_deg"], np.rad2deg(val.ref_heading))
     assert after < before
+
+
+@pytest.mark.slow
+def test_run_husky_experiment_numbers_and_files(real_data_dir, tmp_path):
+    """identification.real_data.run_husky_experiment (docs/real-data.md, Husky section) end to end with a
+    short fit: the numbers it returns, the parameter files and the figure it writes."""
+    from identification.real_data import run_husky_experiment
+
+    if not (real_data_dir / "husky_test1" / "test1.bag").is_file():
+        pytest.skip("Husky bag not available")
+    out, img = tmp_path / "out", tmp_path / "img"
+    max_iter = 2
+    res = run_husky_experiment(real_data_dir, out, img, max_iter=max_iter)
+    variants = ("nominal", "identified", "identified_wide_T_R_prior")
+    assert set(res) == {"import", "train_s", "validate_s", "fits", "nominal", "odometer_rmse_vs_imu_deg",
+                        "gps_course_check_validate", "gps_course_scale_fit_whole_drive"}
+    assert res["train_s"] == pytest.approx(0.6 * 395.2, abs=1.0)
+    assert res["validate_s"] == pytest.approx(0.4 * 395.2, abs=1.0)
+    assert res["import"]["kind"] == "husky"
+
+    # Parameter files: the nominal one as imported, each fit's with the fitted values and its report.
+    nominal, extra = jaxmodel.load_params(out / "husky.params.json")
+    assert float(nominal.T_R) == res["nominal"]["T_R"] == pytest.approx(1.07025)
+    assert extra["report"]["import"]["kind"] == "husky"
+    assert set(res["fits"]) == set(variants[1:])
+    for name, fit in res["fits"].items():
+        params, extra = jaxmodel.load_params(out / f"husky.{name}.params.json")
+        jaxmodel.validate_params(params)
+        assert float(params.T_R) == fit["T_R"] and float(params.a) == fit["a"]
+        # at most max_iter per pass, two passes (the second after 'a' is held: identify._fit_stage)
+        assert extra["report"]["identify"]["iterations"] == fit["iterations"] <= 2 * max_iter
+        assert 1.0 < fit["T_R"] / res["nominal"]["T_R"] < 1.2     # the IMU's shorter turns pull T_R up
+        assert fit["a"] == pytest.approx(res["nominal"]["a"], rel=0.05)
+        assert fit["a_status"] == "not identifiable"
+        assert math.isfinite(fit["T_R_std_error"]) and fit["T_R_std_error"] > 0.0
+    assert res["fits"]["identified_wide_T_R_prior"]["prior_std_log_T_R"] == im.HUSKY_WIDE_TR_PRIOR
+
+    # Odometer RMSE against the IMU yaw: finite, a few degrees, the nominal one as docs/real-data.md quotes.
+    rows = res["odometer_rmse_vs_imu_deg"]
+    assert set(rows) == set(variants)
+    for name, row in rows.items():
+        assert set(row) == {"train", "train_final_error", "validate", "validate_final_error"}
+        assert all(math.isfinite(v) for v in row.values())
+        assert 3.0 < row["train"] < 15.0 and 3.0 < row["validate"] < 15.0
+        assert abs(row["train_final_error"]) < 45.0 and abs(row["validate_final_error"]) < 45.0
+    assert rows["nominal"]["train"] == pytest.approx(11.25, abs=0.05)
+    assert rows["nominal"]["validate"] == pytest.approx(9.41, abs=0.05)
+    for name in variants[1:]:
+        assert rows[name]["train"] < rows["nominal"]["train"]     # fitted on the train part
+
+    # GPS checks: one per heading, enough straight stretches; the odometer with the nominal W turns as the
+    # controller's own odometry does, the IMU's turns are short of the GPS course.
+    checks = res["gps_course_check_validate"]
+    assert set(checks) == {"imu_reference"} | {f"odometer_{n}" for n in variants}
+    for c in checks.values():
+        assert c["n"] > 100 and math.isfinite(c["rms_deg"]) and c["rms_deg"] < 30.0
+    scales = res["gps_course_scale_fit_whole_drive"]
+    assert set(scales) == ({"imu_reference", "controller_odometry", "imu_gyro_integral"}
+                           | {f"odometer_{n}" for n in variants})
+    for s in scales.values():
+        assert s["n"] > 300 and s["scale_ci95"][0] < s["scale"] < s["scale_ci95"][1]
+    assert scales["odometer_nominal"]["scale"] == pytest.approx(scales["controller_odometry"]["scale"], abs=0.005)
+    assert scales["imu_reference"]["scale"] > 1.07
+
+    # The figure: a PNG of 10 x 8.5 in at 90 dpi.
+    import matplotlib.image
+
+    png = img / "husky_identification.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert matplotlib.image.imread(png).shape[:2] == (765, 900)
