@@ -1,4 +1,4 @@
-"""F-DELTA as a robust five-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
+"""F-DELTA as a robust six-state filter (US 4,734,863 FIG. 8G, where the seed leaves the filter open).
 
 The seed low-passes DELTA = H_C - H_W with the distance constant T_C = D_N / (D_T F) and says
 the filter "can be implemented ... in a variety of other filtering relationships depending on
@@ -14,7 +14,8 @@ We filter exactly that model, per travelled metre:
     compass c_{k+1}     = phi c_k + w_c, phi = exp(-|AD|/filter_gm_m)   (anomalies, dip: coloured)
     scale   k_{k+1}     = k_k + w_k                     (the wheel turn alpha's relative error)
     tilt    g_{k+1}     = phi_g g_k + w_g, phi_g = exp(-|AD|/filter_tilt_m)   (road grades)
-    DELTA_k = delta_k + c_k + sin(psi_m) g_k + white compass error
+    roll    r_{k+1}     = phi_g r_k + w_r                (crossfall, body roll; only with B_E given)
+    DELTA_k = delta_k + c_k + sin(psi_m) g_k + cos(psi_m) r_k + white compass error
 
 with process noise ``filter_offset_psd`` per metre plus (``filter_turn_sigma`` alpha)^2 per turn on
 the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
@@ -29,9 +30,12 @@ dip errors; it does not model them).  A pitch theta puts the vertical field B_V 
 forward axis and nothing on its lateral axis, so its heading reads g sin(psi_m) off, g = -(B_V /
 B_H) theta: at a dip of 60-70 deg a 2 % grade is 2-3 deg heading magnetic east or west and nothing
 heading north or south.  So the compass's error is not the same on every road: with g the filter
-weighs it by the heading (``tilt_gain``) and, at a turn, tells g from the wheels' offset.  Grades
-change over hundreds of metres, so g is Gauss-Markov over ``filter_tilt_m``, of stationary sigma
-``filter_tilt_sigma_deg`` (docs/tuning.md, "Stop 21").
+weighs it by the heading (``field_tilt.tilt_gain``) and, at a turn, tells g from the wheels' offset.
+Grades change over hundreds of metres, so g is Gauss-Markov over ``filter_tilt_m``, of stationary sigma
+``filter_tilt_sigma_deg`` (docs/tuning.md, "Stop 21").  A roll puts B_V on the lateral axis instead: r, its
+heading error heading magnetic north or south, of sigma ``field_tilt.ROLL_SIGMA_DEG``.  Both change |B| as well,
+by -g cos(psi_m) + r sin(psi_m): where the user gave B_E (``field_magnitude``), ``field_tilt.update`` measures
+them by it; without B_E, r stays 0 and |B| is not read (docs/tuning.md, "Stop 58").
 
 The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B, T_F, a or dpp
 are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
@@ -97,26 +101,28 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .angles import safe_div, sin_polynomial, wrap
+from .angles import safe_div, wrap
 from .packed import computed_once, packed_state
 from .params import deg
+from .field_tilt import ROLL_SIGMA_DEG
 from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 
 UNINITIALIZED_BOUND = jnp.pi
 """heading_bound (rad) before any absolute heading started the estimate: nothing supports it."""
 
 
-STATES = ("delta", "beta", "c", "k", "g")
+STATES = ("delta", "beta", "c", "k", "g", "r")
 """The filter's states, in the order of its covariance."""
 _N = len(STATES)
 _UPPER = upper_indices(_N)
 
 
 class OffsetFields(NamedTuple):
-    """x = (delta, beta, c, k, g): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
+    """x = (delta, beta, c, k, g, r): F-DELTA (rad), its rate per signed metre (rad/m), the compass's coloured
     error (rad), the wheel turn's relative scale error (1), the tilt error (rad of heading error heading
-    magnetic east or west); p_ij the upper triangle of their covariance P; ``disturbance`` the innovation
-    averaged over filter_check_m (rad); ``since_absolute`` metres since the last absolute sample;
+    magnetic east or west), the roll error (rad of heading error heading magnetic north or south); p_ij the upper
+    triangle of their covariance P; ``disturbance`` the innovation averaged over filter_check_m (rad);
+    ``since_absolute`` metres since the last absolute sample;
     ``rejected_m`` metres driven with the compass present and rejected (weight < 1/2), released REJECTION_RELEASE
     times as fast while it is accepted;
     ``since_drift`` in the rate filter metres since its rate was last large (``count_since_large_drift``), in
@@ -130,21 +136,28 @@ class OffsetFields(NamedTuple):
     c: jnp.ndarray
     k: jnp.ndarray
     g: jnp.ndarray
+    r: jnp.ndarray
     p00: jnp.ndarray
     p01: jnp.ndarray
     p02: jnp.ndarray
     p03: jnp.ndarray
     p04: jnp.ndarray
+    p05: jnp.ndarray
     p11: jnp.ndarray
     p12: jnp.ndarray
     p13: jnp.ndarray
     p14: jnp.ndarray
+    p15: jnp.ndarray
     p22: jnp.ndarray
     p23: jnp.ndarray
     p24: jnp.ndarray
+    p25: jnp.ndarray
     p33: jnp.ndarray
     p34: jnp.ndarray
+    p35: jnp.ndarray
     p44: jnp.ndarray
+    p45: jnp.ndarray
+    p55: jnp.ndarray
     disturbance: jnp.ndarray
     since_absolute: jnp.ndarray
     rejected_m: jnp.ndarray
@@ -183,10 +196,17 @@ def init_offset_state(params):
     P[2][2] = deg(params.filter_gm_sigma_deg) ** 2
     P[3][3] = jnp.asarray(params.filter_scale_sigma0, jnp.float64) ** 2
     P[4][4] = deg(params.filter_tilt_sigma_deg) ** 2
-    return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, **upper(P), disturbance=z,
+    P[5][5] = roll_variance(params)
+    return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, r=z, **upper(P), disturbance=z,
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
                                          # unsteady until LOST_STEADY_M of compass samples said otherwise
                                          level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z))
+
+
+def roll_variance(params):
+    """The roll state's stationary variance (rad^2): deg(ROLL_SIGMA_DEG)^2 where B_E is given (``field_magnitude`` >
+    0), else 0, and r stays 0: the heading alone cannot tell it from F-DELTA heading north or south."""
+    return jnp.where(params.field_magnitude > 0.0, deg(ROLL_SIGMA_DEG) ** 2, 0.0)
 
 
 def start(params):
@@ -212,9 +232,10 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     uncertainty of a turn the odometer guard substituted for a wheel that stopped counting (added to the offset's).
 
     x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0],
-    [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]].  The coloured compass error and the tilt error are first-order
-    Gauss-Markov in distance (anomalies and road grades are fixed in space): phi = exp(-|AD| / filter_gm_m)
-    of stationary sigma filter_gm_sigma_deg, phi_g = exp(-|AD| / filter_tilt_m) of sigma filter_tilt_sigma_deg.
+    [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]] and r like g (``roll_variance``).  The coloured compass error and the tilt
+    error are first-order Gauss-Markov in distance (anomalies and road grades are fixed in space): phi =
+    exp(-|AD| / filter_gm_m) of stationary sigma filter_gm_sigma_deg, phi_g = exp(-|AD| / filter_tilt_m) of sigma
+    filter_tilt_sigma_deg.
     """
     f = fs.fields()
     a = ad_signed
@@ -226,12 +247,13 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     phi_b = jnp.where(f.since_absolute > 0.0, jnp.exp(-d_t / params.filter_rate_corr_m), 1.0)
     # F is diagonal but for its row 0: the offset moves by the rate times AD and by the scale error
     # times the wheel turn.  Written on that structure, with none of the dense products' zeros.
-    d = (1.0, phi_b, phi, 1.0, phi_g)
+    d = (1.0, phi_b, phi, 1.0, phi_g, phi_g)
     Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2 + turn_sigma ** 2,
          params.filter_rate_psd * d_t,
          deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
          params.filter_scale_psd * jnp.abs(alpha),
-         deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g))
+         deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g),
+         roll_variance(params) * (1.0 - phi_g * phi_g))
     P = covariance(f, _N)
     r = [P[0][m] + a * P[1][m] + alpha * P[3][m] for m in range(_N)]  # row 0 of F P
     new_P = {}
@@ -243,7 +265,7 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
         new_P[f"p{i}{j}"] = v + Q[i] if i == j else v
     delta, beta, c, k, g = f.delta + a * f.beta + alpha * f.k, phi_b * f.beta, phi * f.c, f.k, phi_g * f.g
     return OffsetState.pack(OffsetFields(
-        delta=delta, beta=beta, c=c, k=k, g=g, **new_P,
+        delta=delta, beta=beta, c=c, k=k, g=g, r=phi_g * f.r, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
         since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
 
@@ -289,8 +311,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
            dt=None, young=False, with_lost_restart=False):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
-    DELTA = delta + c + tilt g + white noise (h = [1, 0, 1, 0, tilt]); ``tilt`` = sin(psi_m) from
-    ``tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m).
+    DELTA = delta + c + sin(psi_m) g + cos(psi_m) r + white noise (h = [1, 0, 1, 0, sin, cos]); ``tilt`` = (sin(psi_m),
+    cos(psi_m)) from ``field_tilt.tilt_gain`` (or sin(psi_m) alone: no roll term): a pitch turns a level-mounted
+    compass by g sin(psi_m), a roll by r cos(psi_m).
     ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
     so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that rate
     is also significant (``drift_significant``, bool, from ``drifting_significantly``; default ``drifting``).  A filter
@@ -306,8 +329,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     f = fs.fields()
     d_lost = d_t if d_lost is None else d_lost
     drift_significant = drifting if drift_significant is None else drift_significant
-    h = [1, 0, 1, 0, tilt]
-    x = [f.delta, f.beta, f.c, f.k, f.g]
+    sin_m, cos_m = tilt if isinstance(tilt, tuple) else (tilt, 0.0)
+    h = [1, 0, 1, 0, sin_m, cos_m]
+    x = [f.delta, f.beta, f.c, f.k, f.g, f.r]
     nu = wrap(delta_meas - dot(h, x))
     P = covariance(f, _N)
     ph, p_hh = projected(P, h)
@@ -407,18 +431,6 @@ def measure_state(fs, name, value, variance, gate):
     ph, p_hh = projected(P, h)
     new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, value - getattr(f, name), variance, gate ** 2)
     return OffsetState.pack(f._replace(**dict(zip(STATES, new_x)), **new_p))
-
-
-def tilt_gain(params, heading):
-    """How much of the tilt error g reaches the compass heading: sin(psi_m), psi_m = heading - V (rad).
-
-    A pitch theta puts the vertical field B_V on a level-mounted compass's forward axis and nothing on
-    its lateral axis, so with g = -(B_V / B_H) theta its heading reads g sin(psi_m) off: most heading
-    magnetic east or west, nothing heading north or south.  (It also changes |B| by -g cos(psi_m) B_H;
-    used as a second measurement of g that made things worse: anomalies dominate |B|, docs/tuning.md.)
-    """
-    return sin_polynomial(heading - deg(params.variation_deg))
-
 
 
 def drifting(params, rate_filter):

@@ -56,7 +56,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("field_magnitude", 0.0, "compass",
               "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive per heading "
               "(claim 13): a distance-weighted mean of |B| in 12 heading bins, excluding standstill, disturbed "
-              "samples and samples beyond field_learn_gate, forgetting over field_memory_m (jaxmodel.compass)"),
+              "samples and samples beyond field_learn_gate, forgetting over field_memory_m (jaxmodel.compass); "
+              "given (> 0), |B| against it also measures the compass's grade and roll errors (jaxmodel.field_tilt)"),
     ParamSpec("deviation_deg", (0.0,) * DEVIATION_TABLE_SIZE, "deg",
               "compass deviation table (FIG. 8A block 4), 36 entries at raw headings 0, 10, ..., 350 deg, "
               "interpolated periodically"),

@@ -1,11 +1,12 @@
-"""jaxmodel/offset_filter.py and jaxmodel/follow.py: the unrolled five-state algebra against dense matrices, the tilt
-state, the steady filter's follow, the restarts."""
+"""jaxmodel/offset_filter.py, jaxmodel/field_tilt.py and jaxmodel/follow.py: the unrolled six-state algebra against
+dense matrices, the tilt and roll states and |B| as their measurement, the steady filter's follow, the restarts."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxmodel as jm
+from jaxmodel import field_tilt as ft
 from jaxmodel import follow as jf
 from jaxmodel import offset_filter as of
 from jaxmodel.params import deg
@@ -13,23 +14,25 @@ from jaxmodel.params import deg
 
 def _random_state(params, rng):
     """An offset state with a random mean and a random symmetric positive definite covariance."""
-    a = rng.standard_normal((5, 5)) * np.array([0.05, 1e-4, 0.03, 0.02, 0.04])[:, None]
-    P = a @ a.T + np.diag([1e-4, 1e-9, 1e-4, 1e-5, 1e-4])
-    x = rng.standard_normal(5) * np.array([0.1, 1e-4, 0.02, 0.01, 0.03])
+    a = rng.standard_normal((6, 6)) * np.array([0.05, 1e-4, 0.03, 0.02, 0.04, 0.03])[:, None]
+    P = a @ a.T + np.diag([1e-4, 1e-9, 1e-4, 1e-5, 1e-4, 1e-4])
+    x = rng.standard_normal(6) * np.array([0.1, 1e-4, 0.02, 0.01, 0.03, 0.02])
     f = of.init_offset_state(params).fields()
-    cov = {f"p{i}{j}": jnp.asarray(P[i, j]) for i in range(5) for j in range(i, 5)}
-    return of.OffsetState.pack(f._replace(delta=x[0], beta=x[1], c=x[2], k=x[3], g=x[4], **cov)), x, P
+    cov = {f"p{i}{j}": jnp.asarray(P[i, j]) for i in range(6) for j in range(i, 6)}
+    return of.OffsetState.pack(f._replace(delta=x[0], beta=x[1], c=x[2], k=x[3], g=x[4], r=x[5], **cov)), x, P
 
 
 def _dense(fs):
     f = fs.fields()
-    P = np.array([[float(getattr(f, f"p{min(i, j)}{max(i, j)}")) for j in range(5)] for i in range(5)])
-    return np.array([float(v) for v in (f.delta, f.beta, f.c, f.k, f.g)]), P
+    P = np.array([[float(getattr(f, f"p{min(i, j)}{max(i, j)}")) for j in range(6)] for i in range(6)])
+    return np.array([float(v) for v in (f.delta, f.beta, f.c, f.k, f.g, f.r)]), P
 
 
 @pytest.fixture
 def params():
-    return jm.make_params({"filter_tilt_sigma_deg": 3.0, "filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-4})
+    """B_E given (``field_magnitude``): the roll state r is on."""
+    return jm.make_params({"filter_tilt_sigma_deg": 3.0, "filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-4,
+                           "field_magnitude": 20.0})
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -41,24 +44,26 @@ def test_predict_is_the_dense_kalman_prediction(params, seed):
     got_x, got_P = _dense(of.predict(params, fs, ad, d_t, alpha))
     phi = np.exp(-d_t / float(params.filter_gm_m))
     phi_g = np.exp(-d_t / float(params.filter_tilt_m))
-    F = np.array([[1, ad, 0, alpha, 0], [0, 1, 0, 0, 0], [0, 0, phi, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]])
+    F = np.array([[1, ad, 0, alpha, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, phi, 0, 0, 0], [0, 0, 0, 1, 0, 0],
+                  [0, 0, 0, 0, phi_g, 0], [0, 0, 0, 0, 0, phi_g]])
     Q = np.diag([float(params.filter_offset_psd) * d_t + (float(params.filter_turn_sigma) * alpha) ** 2,
                  float(params.filter_rate_psd) * d_t,
                  float(deg(params.filter_gm_sigma_deg)) ** 2 * (1 - phi ** 2),
                  float(params.filter_scale_psd) * alpha,
-                 float(deg(params.filter_tilt_sigma_deg)) ** 2 * (1 - phi_g ** 2)])
+                 float(deg(params.filter_tilt_sigma_deg)) ** 2 * (1 - phi_g ** 2),
+                 np.radians(ft.ROLL_SIGMA_DEG) ** 2 * (1 - phi_g ** 2)])
     np.testing.assert_allclose(got_x, F @ x, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(got_P, F @ P @ F.T + Q, rtol=1e-10, atol=1e-18)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_update_is_the_dense_kalman_update_for_a_clean_sample(params, seed):
-    """A sample in agreement (no gate, no inflation) is the textbook update with h = [1, 0, 1, 0, sin(psi_m)]."""
+    """A sample in agreement (no gate, no inflation) is the textbook update with h = [1, 0, 1, 0, sin, cos(psi_m)]."""
     rng = np.random.default_rng(seed)
     fs, x, P = _random_state(params, rng)
     heading = 1.1
-    tilt = of.tilt_gain(params, jnp.asarray(heading))
-    h = np.array([1.0, 0.0, 1.0, 0.0, np.sin(heading)])
+    tilt = ft.tilt_gain(params, jnp.asarray(heading))
+    h = np.array([1.0, 0.0, 1.0, 0.0, np.sin(heading), np.cos(heading)])
     # A measurement close to the prediction and a long check distance: z2 ~ 0, the gate is not touched.
     p = params._replace(filter_check_m=jnp.asarray(1e9), filter_compass_corr_m=jnp.asarray(1e-3))
     meas = float(h @ x) + 1e-5
@@ -73,11 +78,48 @@ def test_update_is_the_dense_kalman_update_for_a_clean_sample(params, seed):
     assert float(weight) > 0.99
 
 
-def test_tilt_gain_is_sin_of_the_magnetic_heading():
-    """Nothing heading magnetic north or south, all of g heading east or west (variation V taken off)."""
+def test_tilt_gain_is_sin_and_cos_of_the_magnetic_heading():
+    """Nothing of g heading magnetic north or south, all of it heading east or west; r the other way round
+    (variation V taken off)."""
     p = jm.make_params({"variation_deg": 10.0})
-    for true_deg, expected in [(10.0, 0.0), (100.0, 1.0), (190.0, 0.0), (280.0, -1.0)]:
-        assert float(of.tilt_gain(p, jnp.asarray(np.radians(true_deg)))) == pytest.approx(expected, abs=1e-12)
+    for true_deg, expected in [(10.0, (0.0, 1.0)), (100.0, (1.0, 0.0)), (190.0, (0.0, -1.0)), (280.0, (-1.0, 0.0))]:
+        got = ft.tilt_gain(p, jnp.asarray(np.radians(true_deg)))
+        assert [float(v) for v in got] == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_field_magnitude_update_is_the_dense_kalman_update(params, seed):
+    """ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m): with an innovation inside the gate, the textbook update with
+    h = [0, 0, 0, 0, -cos, sin] and noise FIELD_SIGMA^2 (one sample = one measurement here)."""
+    rng = np.random.default_rng(seed)
+    fs, x, P = _random_state(params, rng)
+    heading = 0.4
+    tilt = ft.tilt_gain(params, jnp.asarray(heading))
+    h = np.array([0.0, 0.0, 0.0, 0.0, -np.cos(heading), np.sin(heading)])
+    p = params._replace(filter_compass_corr_m=jnp.asarray(1e-3))
+    b_m = 20.0 * np.exp(float(h @ x) + 0.004)
+    new = ft.update(p, fs, jnp.asarray(b_m), tilt, jnp.asarray(True), jnp.asarray(1.0), None)
+    got_x, got_P = _dense(new)
+    s = h @ P @ h + ft.FIELD_SIGMA ** 2
+    k = P @ h / s
+    np.testing.assert_allclose(got_x, x + k * (np.log(b_m / 20.0) - h @ x), rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(got_P, P - np.outer(k, h @ P), rtol=1e-9, atol=1e-16)
+
+
+def test_the_field_magnitude_is_read_only_against_a_given_b_e(params):
+    """Without ``field_magnitude`` (B_E learned from the drive, which learns the grades too) |B| changes nothing and the
+    roll state stays 0 with no variance; nor is a sample read that was not clean, or while standing."""
+    rng = np.random.default_rng(3)
+    learned = params._replace(field_magnitude=jnp.asarray(0.0))
+    assert float(of.init_offset_state(learned).fields().p55) == 0.0
+    assert float(of.init_offset_state(params).fields().p55) == pytest.approx(np.radians(ft.ROLL_SIGMA_DEG) ** 2)
+    fs, _, _ = _random_state(params, rng)
+    tilt = ft.tilt_gain(params, jnp.asarray(0.4))
+    for p, ok, d_t in ((learned, True, 1.0), (params, False, 1.0), (params, True, 0.0)):
+        new = ft.update(p, fs, jnp.asarray(23.0), tilt, jnp.asarray(ok), jnp.asarray(d_t), None)
+        np.testing.assert_array_equal(np.asarray(new.vector), np.asarray(fs.vector))
+    moved = ft.update(params, fs, jnp.asarray(23.0), tilt, jnp.asarray(True), jnp.asarray(1.0), None)
+    assert float(moved.fields().g) != float(fs.fields().g)
 
 
 def test_lost_distance_counts_walking_pace_as_lost_min_speed():
