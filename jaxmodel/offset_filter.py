@@ -22,8 +22,8 @@ the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
 ``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C, and ``filter_compass_lag_s`` times the turn
 rate: ``compass_sigma``) counted once per
 ``filter_compass_corr_m`` metres, divided by the seed's factor F (FIG. 8E: F > 1 trusts the compass
-more), ``filter_scale_psd`` per radian turned on k.  It is a five-state Kalman filter; with beta,
-k and g held at 0 and a fixed gain it is the seed's first-order filter.
+more), ``filter_scale_psd`` per radian turned on k.  It is a six-state Kalman filter; with beta,
+k, g and r held at 0 and a fixed gain it is the seed's first-order filter.
 
 The tilt state g is the dip error of a level-mounted two-axis compass (the seed's FIG. 3A shows
 dip errors; it does not model them).  A pitch theta puts the vertical field B_V on the compass's
@@ -34,8 +34,8 @@ weighs it by the heading (``field_tilt.tilt_gain``) and, at a turn, tells g from
 Grades change over hundreds of metres, so g is Gauss-Markov over ``filter_tilt_m``, of stationary sigma
 ``filter_tilt_sigma_deg`` (docs/tuning.md, "Stop 21").  A roll puts B_V on the lateral axis instead: r, its
 heading error heading magnetic north or south, of sigma ``field_tilt.ROLL_SIGMA_DEG``.  Both change |B| as well,
-by -g cos(psi_m) + r sin(psi_m): where the user gave B_E (``field_magnitude``), ``field_tilt.update`` measures
-them by it; without B_E, r stays 0 and |B| is not read (docs/tuning.md, "Stop 58").
+by -g cos(psi_m) + r sin(psi_m): where the user gave B_E (``field_magnitude``) and asked for it
+(``filter_field_sigma``), ``field_tilt.update`` measures them by it; else r stays 0 and |B| is not read.
 
 The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B, T_F, a or dpp
 are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
@@ -104,7 +104,7 @@ import jax.numpy as jnp
 from .angles import safe_div, wrap
 from .packed import computed_once, packed_state
 from .params import deg
-from .field_tilt import ROLL_SIGMA_DEG
+from .field_tilt import ROLL_SIGMA_DEG, reads_field
 from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 
 UNINITIALIZED_BOUND = jnp.pi
@@ -204,9 +204,9 @@ def init_offset_state(params):
 
 
 def roll_variance(params):
-    """The roll state's stationary variance (rad^2): deg(ROLL_SIGMA_DEG)^2 where B_E is given (``field_magnitude`` >
-    0), else 0, and r stays 0: the heading alone cannot tell it from F-DELTA heading north or south."""
-    return jnp.where(params.field_magnitude > 0.0, deg(ROLL_SIGMA_DEG) ** 2, 0.0)
+    """The roll state's stationary variance (rad^2): deg(ROLL_SIGMA_DEG)^2 where |B| is read
+    (``field_tilt.reads_field``), else 0, and r stays 0: the heading alone cannot tell it from F-DELTA heading north or south."""
+    return jnp.where(reads_field(params), deg(ROLL_SIGMA_DEG) ** 2, 0.0)
 
 
 def start(params):

@@ -57,7 +57,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
               "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive per heading "
               "(claim 13): a distance-weighted mean of |B| in 12 heading bins, excluding standstill, disturbed "
               "samples and samples beyond field_learn_gate, forgetting over field_memory_m (jaxmodel.compass); "
-              "given (> 0), |B| against it also measures the compass's grade and roll errors (jaxmodel.field_tilt)"),
+              "given (> 0) with filter_field_sigma > 0, |B| against it also measures the compass's grade and roll "
+              "errors (jaxmodel.field_tilt)"),
     ParamSpec("deviation_deg", (0.0,) * DEVIATION_TABLE_SIZE, "deg",
               "compass deviation table (FIG. 8A block 4), 36 entries at raw headings 0, 10, ..., 350 deg, "
               "interpolated periodically"),
@@ -110,6 +111,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_gm_sigma_deg", 1.0, "deg", "stationary sigma of the compass's coloured error"),
     ParamSpec("filter_tilt_sigma_deg", 3.0, "deg", "stationary sigma of the tilt error: the heading error of a level-mounted compass heading magnetic east or west on a grade (tan(dip) x pitch; nothing heading north or south)"),
     ParamSpec("filter_tilt_m", 1000.0, "m", "correlation distance of the tilt error (road grades)"),
+    ParamSpec("filter_field_sigma", 0.0, "1", "noise of ln(|B| / B_E) per compass measurement when the field magnitude is read as the compass's grade and roll errors (jaxmodel.field_tilt; needs field_magnitude > 0; 0 = not read, the default: docs/tuning.md stop 58, 0.02 measured)"),
     ParamSpec("filter_check_m", 2.53, "m", "distance over which DELTA's agreement with the wheels is averaged (disturbance detection)"),
     ParamSpec("filter_check_sigma_deg", 1.389, "deg", "expected spread of that average on a clean compass"),
     ParamSpec("filter_gate_sigma", 0.4081, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),
@@ -254,7 +256,7 @@ NON_NEGATIVE_KEYS = (
     "kf_white_sigma_deg", "kf_compass_sigma_deg", "kf_map_sigma_deg", "kf_compass_ec_weight", "kf_compass_corr_m",
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
     "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
-    "filter_compass_lag_s",
+    "filter_compass_lag_s", "filter_field_sigma",
     "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate",
     "filter_follow_show_rate", "filter_reacquire_drift_deg",
     "hard_iron_min_distance_m", "hard_iron_restart_fraction")

@@ -1,6 +1,6 @@
 """Small Kalman algebra unrolled into scalars at trace time.
 
-The robust F-DELTA (``offset_filter``) keeps its five states and the upper triangle of their covariance as fields
+The robust F-DELTA (``offset_filter``) keeps its six states and the upper triangle of their covariance as fields
 of one packed vector (``packed.py``).  Inside the vmapped scan XLA:CPU runs each tiny matmul as its own kernel, and
 a dense (5, 5) form on broadcasts was no faster (docs/tuning.md, "Throughput, stop 22"), so its algebra is written
 on nested lists of scalars.  Rows given as Python numbers (the structural 0s and 1s of a measurement vector) emit no

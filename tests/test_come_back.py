@@ -5,21 +5,23 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmodel import field_tilt
+
 from independent_drives import heading_error_deg, independent_sim, unidentified_params
 
 
-def _error_deg(tmp_path, kind, seed, hide_mismatch=False, learn_field=False, disable=()):
+def _error_deg(tmp_path, kind, seed, hide_mismatch=False, read_field=False, disable=()):
     """(time s, heading error deg) of the default mode on an independent drive; ``hide_mismatch`` gives both wheels
-    the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does); ``learn_field`` drops the
-    drive's field_magnitude (B_E learned, |B| not read by jaxmodel/field_tilt.py); ``disable``: the simulator's
+    the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does); ``read_field`` reads |B|
+    against the drive's field_magnitude (jaxmodel/field_tilt.py, filter_field_sigma); ``disable``: the simulator's
     features switched off."""
     path, params_path = independent_sim.make_drive(kind, seed, tmp_path, disable=disable)
     params = unidentified_params(params_path)
     if hide_mismatch:
         mean = 0.5 * (params.dpp_left + params.dpp_right)
         params = params._replace(dpp_left=mean, dpp_right=mean)
-    if learn_field:
-        params = params._replace(field_magnitude=jnp.zeros_like(params.field_magnitude))
+    if read_field:
+        params = params._replace(filter_field_sigma=jnp.asarray(field_tilt.MEASURED_FIELD_SIGMA))
     return heading_error_deg(path, params)
 
 
@@ -27,10 +29,9 @@ def _error_deg(tmp_path, kind, seed, hide_mismatch=False, learn_field=False, dis
 def test_a_start_on_a_grade_is_restarted_after_the_first_turn(tmp_path):
     """urban_hilly seed 20: started heading magnetic west on a 9 % grade, 12.6 deg off; after the first turn (28 s) the
     compass was within 3 deg, disagreeing steadily by 10 deg, and the filter took 10 minutes to come back (-7.7 deg at
-    120 s, -5 deg at 300 s).  The young restart (offset_filter.young): within 1.3 deg from 140 to 240 s.  With B_E
-    learned: given, |B| reads the grade (jaxmodel/field_tilt.py) and the drive is 1.61 deg RMSE against 3.80 before
-    it, but 2.2 deg at worst in that window (stop 58)."""
-    t, err = _error_deg(tmp_path, "urban_hilly", 20, learn_field=True)
+    120 s, -5 deg at 300 s).  The young restart (offset_filter.young): within 1.3 deg from 140 to 240 s.  (With |B|
+    read as the grade, jaxmodel/field_tilt.py: 1.61 deg RMSE against 3.80, but 2.2 deg at worst in that window.)"""
+    t, err = _error_deg(tmp_path, "urban_hilly", 20)
     assert abs(err[0]) > 10.0  # the start on the grade
     assert np.max(np.abs(err[(t > 140.0) & (t < 240.0)])) < 1.5
 
@@ -54,10 +55,9 @@ def test_a_slow_hidden_drift_is_captured_and_followed(tmp_path):
     """highway seed 26 with its 0.16 % tyre mismatch hidden: the rate filter measured -600 to -820 µrad/m from 30 s
     on, under the 1e-3 rad/m of a large drift, so nothing captured it and no follow hold started; the steady filter
     lagged 10-38 deg, shown whenever the rate's significance dipped (3.93 deg RMSE, 11.6 deg at worst).  With
-    filter_follow_hold_rate 5e-4 rad/m (docs/tuning.md, stop 52): 0.79 deg, 2.5 deg at worst.  With B_E learned:
-    given, |B| read as the grade's and the roll's errors (jaxmodel/field_tilt.py) makes this drive 1.04 deg RMSE, 5.1
-    deg at worst (stop 58, one of the drives it made worse)."""
-    t, err = _error_deg(tmp_path, "highway", 26, hide_mismatch=True, learn_field=True)
+    filter_follow_hold_rate 5e-4 rad/m (docs/tuning.md, stop 52): 0.79 deg, 2.5 deg at worst.  (|B| read as the
+    grade's and the roll's errors, jaxmodel/field_tilt.py, makes it 1.04 deg RMSE, 5.1 deg at worst: stop 58.)"""
+    t, err = _error_deg(tmp_path, "highway", 26, hide_mismatch=True)
     after_first_minute = err[t >= 60.0]
     assert np.sqrt(np.mean(after_first_minute ** 2)) < 1.5
     assert np.max(np.abs(after_first_minute)) < 4.0
@@ -97,14 +97,14 @@ def test_a_small_hidden_drift_the_stretches_corroborate_is_followed(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_given_field_magnitude_takes_the_grades_out_of_the_heading(tmp_path):
+def test_the_field_magnitude_read_takes_the_grades_out_of_the_heading(tmp_path):
     """urban_hilly seed 94 with only anomalies and hills (tyre slip, road noise, the compass's calibration error, soft
     iron, body tilt and the mount's rotation switched off, as in the issue's description of its evaluation): 8-10 %
-    grades at a dip of 60-70 deg turn the compass by up to 15 deg.  Before stop 58 the default was 2.26 deg RMSE; with
-    B_E given, |B| measures the grade heading north or south and the roll (jaxmodel/field_tilt.py): 0.63 deg.  With
-    B_E learned it is not read."""
+    grades at a dip of 60-70 deg turn the compass by up to 15 deg.  The default is 2.26 deg RMSE; with |B| read against the
+    drive's B_E (filter_field_sigma 0.02) as the grade heading north or south and the roll (jaxmodel/field_tilt.py):
+    0.63 deg."""
     off = ("slip", "road_noise", "calib_error", "soft_iron", "tilt", "mount_rotation")
-    t, err = _error_deg(tmp_path, "urban_hilly", 94, disable=off)
+    t, err = _error_deg(tmp_path, "urban_hilly", 94, disable=off, read_field=True)
     assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) < 1.0
-    t, err = _error_deg(tmp_path, "urban_hilly", 94, disable=off, learn_field=True)
+    t, err = _error_deg(tmp_path, "urban_hilly", 94, disable=off)
     assert np.sqrt(np.mean(err[t >= 60.0] ** 2)) > 1.5

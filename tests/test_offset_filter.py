@@ -30,9 +30,9 @@ def _dense(fs):
 
 @pytest.fixture
 def params():
-    """B_E given (``field_magnitude``): the roll state r is on."""
+    """B_E given (``field_magnitude``) and read (``filter_field_sigma``): the roll state r is on."""
     return jm.make_params({"filter_tilt_sigma_deg": 3.0, "filter_scale_sigma0": 0.05, "filter_scale_psd": 1e-4,
-                           "field_magnitude": 20.0})
+                           "field_magnitude": 20.0, "filter_field_sigma": ft.MEASURED_FIELD_SIGMA})
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -90,7 +90,7 @@ def test_tilt_gain_is_sin_and_cos_of_the_magnetic_heading():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_field_magnitude_update_is_the_dense_kalman_update(params, seed):
     """ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m): with an innovation inside the gate, the textbook update with
-    h = [0, 0, 0, 0, -cos, sin] and noise FIELD_SIGMA^2 (one sample = one measurement here)."""
+    h = [0, 0, 0, 0, -cos, sin] and noise filter_field_sigma^2 (one sample = one measurement here)."""
     rng = np.random.default_rng(seed)
     fs, x, P = _random_state(params, rng)
     heading = 0.4
@@ -100,22 +100,26 @@ def test_the_field_magnitude_update_is_the_dense_kalman_update(params, seed):
     b_m = 20.0 * np.exp(float(h @ x) + 0.004)
     new = ft.update(p, fs, jnp.asarray(b_m), tilt, jnp.asarray(True), jnp.asarray(1.0), None)
     got_x, got_P = _dense(new)
-    s = h @ P @ h + ft.FIELD_SIGMA ** 2
+    s = h @ P @ h + float(params.filter_field_sigma) ** 2
     k = P @ h / s
     np.testing.assert_allclose(got_x, x + k * (np.log(b_m / 20.0) - h @ x), rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(got_P, P - np.outer(k, h @ P), rtol=1e-9, atol=1e-16)
 
 
-def test_the_field_magnitude_is_read_only_against_a_given_b_e(params):
-    """Without ``field_magnitude`` (B_E learned from the drive, which learns the grades too) |B| changes nothing and the
-    roll state stays 0 with no variance; nor is a sample read that was not clean, or while standing."""
+def test_the_field_magnitude_is_read_only_against_a_given_b_e_and_when_asked_for(params):
+    """Without ``field_magnitude`` (B_E learned from the drive, which learns the grades too), or by default
+    (``filter_field_sigma`` 0), |B| changes nothing and the roll state stays 0 with no variance; nor is a sample read
+    that was not clean, or while standing."""
     rng = np.random.default_rng(3)
     learned = params._replace(field_magnitude=jnp.asarray(0.0))
-    assert float(of.init_offset_state(learned).fields().p55) == 0.0
+    default = params._replace(filter_field_sigma=jm.make_params().filter_field_sigma)
+    assert float(default.filter_field_sigma) == 0.0
+    for off in (learned, default):
+        assert float(of.init_offset_state(off).fields().p55) == 0.0
     assert float(of.init_offset_state(params).fields().p55) == pytest.approx(np.radians(ft.ROLL_SIGMA_DEG) ** 2)
     fs, _, _ = _random_state(params, rng)
     tilt = ft.tilt_gain(params, jnp.asarray(0.4))
-    for p, ok, d_t in ((learned, True, 1.0), (params, False, 1.0), (params, True, 0.0)):
+    for p, ok, d_t in ((learned, True, 1.0), (default, True, 1.0), (params, False, 1.0), (params, True, 0.0)):
         new = ft.update(p, fs, jnp.asarray(23.0), tilt, jnp.asarray(ok), jnp.asarray(d_t), None)
         np.testing.assert_array_equal(np.asarray(new.vector), np.asarray(fs.vector))
     moved = ft.update(params, fs, jnp.asarray(23.0), tilt, jnp.asarray(True), jnp.asarray(1.0), None)
