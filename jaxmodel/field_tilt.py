@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .angles import sin_polynomial, wrap
+from .angles import sin_polynomial
 from .params import deg
 
 FIELD_GATE_SIGMA = 3.0
@@ -61,23 +61,15 @@ def reads_field(params):
 
 
 def update(params, fs, b_m, tilt, ok, d_t, dt):
-    """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (h = [0, 0, 0, 0, -cos,
-    sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m metres and COMPASS_CORR_S
-    seconds), soft-gated at FIELD_GATE_SIGMA.  ``b_m``: |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from
-    ``tilt_gain``; ``ok`` (bool): a clean compass sample while moving.  Unchanged where not ``ok`` or where |B| is not
-    read (``reads_field``)."""
-    from . import offset_filter as _of
-    from .unrolled import covariance, dot, gated_scalar_update, projected
+    """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
+    h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
+    metres and COMPASS_CORR_S seconds), soft-gated at FIELD_GATE_SIGMA.  ``b_m``: |B| (compass units); ``tilt``:
+    (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a clean compass sample while moving.  Unchanged where
+    not ``ok`` or where |B| is not read (``reads_field``)."""
+    from . import offset_filter as _of  # it reads ROLL_SIGMA_DEG and reads_field from here
 
-    f = fs.fields()
     ok = ok & reads_field(params) & (d_t > 0.0) & (b_m > 0.0)
     field_dev = jnp.log(jnp.where(ok, b_m / jnp.where(ok, params.field_magnitude, 1.0), 1.0))
-    h = [0, 0, 0, 0, -tilt[1], tilt[0]]
-    x = [f.delta, f.beta, f.c, f.k, f.g, f.r]
-    nu = field_dev - dot(h, x)
-    P = covariance(f, len(x))
-    ph, p_hh = projected(P, h)
-    r = params.filter_field_sigma ** 2 * _of.samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
-    new_x, new_P, _ = gated_scalar_update(x, P, ph, p_hh, nu, r, FIELD_GATE_SIGMA ** 2)
-    new = f._replace(delta=wrap(new_x[0]), beta=new_x[1], c=new_x[2], k=new_x[3], g=new_x[4], r=new_x[5], **new_P)
-    return _of.OffsetState.pack(_of.OffsetFields(*[jnp.where(ok, n_, o_) for n_, o_ in zip(new, f)]))
+    variance = params.filter_field_sigma ** 2 * _of.samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
+    new = _of.measure(fs, [0, 0, 0, 0, -tilt[1], tilt[0]], field_dev, variance, FIELD_GATE_SIGMA)
+    return _of.OffsetState(jnp.where(ok, new.vector, fs.vector))

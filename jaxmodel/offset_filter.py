@@ -312,8 +312,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + sin(psi_m) g + cos(psi_m) r + white noise (h = [1, 0, 1, 0, sin, cos]); ``tilt`` = (sin(psi_m),
-    cos(psi_m)) from ``field_tilt.tilt_gain`` (or sin(psi_m) alone: no roll term): a pitch turns a level-mounted
-    compass by g sin(psi_m), a roll by r cos(psi_m).
+    cos(psi_m)) from ``field_tilt.tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m), a roll by
+    r cos(psi_m).
     ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
     so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that rate
     is also significant (``drift_significant``, bool, from ``drifting_significantly``; default ``drifting``).  A filter
@@ -329,8 +329,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     f = fs.fields()
     d_lost = d_t if d_lost is None else d_lost
     drift_significant = drifting if drift_significant is None else drift_significant
-    sin_m, cos_m = tilt if isinstance(tilt, tuple) else (tilt, 0.0)
-    h = [1, 0, 1, 0, sin_m, cos_m]
+    h = [1, 0, 1, 0, *tilt]
     x = [f.delta, f.beta, f.c, f.k, f.g, f.r]
     nu = wrap(delta_meas - dot(h, x))
     P = covariance(f, _N)
@@ -420,17 +419,22 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     return out, weight
 
 
-def measure_state(fs, name, value, variance, gate):
-    """``fs`` (an OffsetState) updated by a direct measurement of its state ``name`` (one of STATES): ``value`` of
-    ``variance``, h the unit row of that state, the variance inflated beyond ``gate`` sigmas of the innovation
-    (``unrolled.gated_scalar_update``).  The stretches' rate (``drift_capture.measure_rate``) measures beta so."""
+def measure(fs, h, value, variance, gate):
+    """``fs`` (an OffsetState) updated by a measurement ``value`` = h x of ``variance``, h a row over STATES (a list;
+    Python 0s and 1s cost nothing), the variance inflated beyond ``gate`` sigmas of the innovation
+    (``unrolled.gated_scalar_update``).  The field's magnitude (``field_tilt.update``) measures g and r so."""
     f = fs.fields()
-    h = [1 if state == name else 0 for state in STATES]
     x = [getattr(f, state) for state in STATES]
     P = covariance(f, _N)
     ph, p_hh = projected(P, h)
-    new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, value - getattr(f, name), variance, gate ** 2)
+    new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, value - dot(h, x), variance, gate ** 2)
     return OffsetState.pack(f._replace(**dict(zip(STATES, new_x)), **new_p))
+
+
+def measure_state(fs, name, value, variance, gate):
+    """``measure`` of the state ``name`` (one of STATES) itself: h its unit row.  The stretches' rate
+    (``drift_capture.measure_rate``) measures beta so."""
+    return measure(fs, [1 if state == name else 0 for state in STATES], value, variance, gate)
 
 
 def drifting(params, rate_filter):

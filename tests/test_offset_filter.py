@@ -12,6 +12,10 @@ from jaxmodel import offset_filter as of
 from jaxmodel.params import deg
 
 
+_LEVEL = (0.0, 0.0)
+"""``update``'s tilt gains (sin, cos of the magnetic heading) where neither tilt nor roll reaches the heading."""
+
+
 def _random_state(params, rng):
     """An offset state with a random mean and a random symmetric positive definite covariance."""
     a = rng.standard_normal((6, 6)) * np.array([0.05, 1e-4, 0.03, 0.02, 0.04, 0.03])[:, None]
@@ -141,7 +145,7 @@ def _stand(params, fs, compass_deltas):
     out = []
     for z in compass_deltas:
         fs, _ = of.update(params, fs, jnp.asarray(z), jnp.asarray(0.03), jnp.asarray(0.0), 1.0, jnp.asarray(True),
-                          jnp.asarray(False), jnp.asarray(0.0), d_lost=of.lost_distance(0.0, 0.1), dt=jnp.asarray(0.1))
+                          jnp.asarray(False), _LEVEL, d_lost=of.lost_distance(0.0, 0.1), dt=jnp.asarray(0.1))
         out.append(float(fs.delta))
     return np.asarray(out)
 
@@ -290,7 +294,7 @@ def test_a_restart_from_the_compass_keeps_the_follow_hold():
     f = _steady(params, 0.0, 300.0).fields()
     rejected_long = of.OffsetState.pack(f._replace(rejected_m=jnp.asarray(1e5), disturbance=jnp.asarray(deg(30.0))))
     new, _ = of.update(steady_params, rejected_long, jnp.asarray(deg(30.0)), jnp.asarray(deg(3.0)), 1.0, 1.0,
-                       jnp.asarray(True), jnp.asarray(False), 0.0)
+                       jnp.asarray(True), jnp.asarray(False), _LEVEL)
     assert np.degrees(float(new.delta)) == pytest.approx(30.0)  # restarted from the compass
     assert float(new.since_drift) == 300.0
 
@@ -305,7 +309,7 @@ def test_an_early_restart_needs_a_significant_drift(significant, restarted):
     rejected = of.OffsetState.pack(f._replace(rejected_m=jnp.asarray(2000.0), disturbance=jnp.asarray(deg(12.0)),
                                               p00=jnp.asarray(deg(0.5) ** 2)))
     new, weight = of.update(params, rejected, jnp.asarray(deg(12.0)), jnp.asarray(deg(3.0)), 1.0, 1.0,
-                            jnp.asarray(True), jnp.asarray(True), 0.0, drift_significant=jnp.asarray(significant))
+                            jnp.asarray(True), jnp.asarray(True), _LEVEL, drift_significant=jnp.asarray(significant))
     assert float(weight) < 0.5  # the sample itself is rejected
     assert np.degrees(float(new.delta)) == pytest.approx(12.0 if restarted else 0.0, abs=0.5)
 
@@ -319,7 +323,7 @@ def test_an_accepted_sample_releases_the_rejection_count_in_proportion():
     agreeing = jnp.asarray(0.0)  # the compass agrees with F-DELTA: accepted
     for metres, expected in ((2.5, 2000.0 - of.REJECTION_RELEASE * 2.5), (20.0, 0.0)):
         new, weight = of.update(params, fs, agreeing, jnp.asarray(deg(3.0)), metres, 1.0, jnp.asarray(True),
-                                jnp.asarray(False), 0.0)
+                                jnp.asarray(False), _LEVEL)
         assert float(weight) > 0.5
         assert float(new.rejected_m) == pytest.approx(expected)
 
@@ -355,7 +359,7 @@ def test_a_young_start_restarts_from_a_compass_that_steadily_contradicts_it(youn
     assert bool(of.young(params, 999.0)) and not bool(of.young(params, 1001.0))
     fs = _rejected_for(params, metres, 10.0, wander_deg)
     new, weight = of.update(params, fs, jnp.asarray(deg(10.0)), jnp.asarray(deg(3.0)), 10.0, 1.0,
-                            jnp.asarray(True), jnp.asarray(significant), 0.0,
+                            jnp.asarray(True), jnp.asarray(significant), _LEVEL,
                             drift_significant=jnp.asarray(significant), young=jnp.asarray(young))
     assert np.degrees(float(new.delta)) == pytest.approx(10.0 if restarted else 0.0, abs=0.7)
 
@@ -367,7 +371,7 @@ def test_update_says_when_it_restarted_as_lost():
     big = float(params.filter_reacquire_large_deg) + 20.0
     lost = _rejected_for(params, 500.0, big, 0.5)
     lost = of.OffsetState.pack(lost.fields()._replace(lost_m=jnp.asarray(1e3)))
-    args = (jnp.asarray(deg(3.0)), 10.0, 1.0, jnp.asarray(True), jnp.asarray(False), 0.0)
+    args = (jnp.asarray(deg(3.0)), 10.0, 1.0, jnp.asarray(True), jnp.asarray(False), _LEVEL)
     new, _, flag = of.update(params, lost, jnp.asarray(deg(big)), *args, with_lost_restart=True)
     assert bool(flag) and np.degrees(float(new.delta)) == pytest.approx(big, abs=0.5)
     young = _rejected_for(params, _YOUNG_REJECT_M + 5.0, 10.0, 0.8)
@@ -404,7 +408,7 @@ def test_an_anchored_filter_far_off_a_steady_compass_restarts(disagreement_deg, 
     params = jm.make_params()
     fs = _rejected_for(params, metres, disagreement_deg, wander_deg)
     new, _ = of.update(params, fs, jnp.asarray(deg(disagreement_deg)), jnp.asarray(deg(3.0)), 10.0, 1.0,
-                       jnp.asarray(True), jnp.asarray(False), 0.0, drift_significant=jnp.asarray(False),
+                       jnp.asarray(True), jnp.asarray(False), _LEVEL, drift_significant=jnp.asarray(False),
                        young=jnp.asarray(False))
     assert np.degrees(float(new.delta)) == pytest.approx(disagreement_deg if restarted else 0.0, abs=0.7)
 
@@ -458,7 +462,7 @@ def _samples_to_lost_restart(params, metres_per_sample, dt):
     fs = of.OffsetState.pack(of.init_offset_state(params).fields()._replace(p00=jnp.asarray(deg(1.0) ** 2)))
     for i in range(1, 60):
         fs, _ = of.update(params, fs, jnp.asarray(deg(-70.0)), jnp.asarray(deg(3.0)), metres_per_sample, 1.0,
-                          jnp.asarray(True), jnp.asarray(False), 0.0,
+                          jnp.asarray(True), jnp.asarray(False), _LEVEL,
                           d_lost=of.lost_distance(metres_per_sample, dt), dt=jnp.asarray(dt))
         if abs(np.degrees(float(fs.delta)) + 70.0) < 1.0:
             return i
@@ -496,6 +500,6 @@ def test_an_anchored_filter_is_lost_only_to_a_steady_compass_or_after_long(young
     fs = _rejected_for(params, lost_m, big, wander_deg)
     fs = of.OffsetState.pack(fs.fields()._replace(lost_m=jnp.asarray(lost_m)))
     new, _, flag = of.update(params, fs, jnp.asarray(deg(big)), jnp.asarray(deg(3.0)), 10.0, 1.0, jnp.asarray(True),
-                             jnp.asarray(False), 0.0, young=jnp.asarray(young), with_lost_restart=True)
+                             jnp.asarray(False), _LEVEL, young=jnp.asarray(young), with_lost_restart=True)
     assert bool(flag) == restarted
     assert np.degrees(float(new.delta)) == pytest.approx(big if restarted else 0.0, abs=0.5)
