@@ -60,7 +60,7 @@ def test_compass_information_is_counted_per_time_at_most_once_per_10_hz_sample()
     params = jm.make_params()
     fs = offset_filter.init_offset_state(params)
     update = functools.partial(offset_filter.update, params, fs, jnp.asarray(0.05), jnp.asarray(0.03),
-                               jnp.asarray(1.5), 1.0, jnp.asarray(True), jnp.asarray(False), jnp.asarray(0.0))
+                               jnp.asarray(1.5), 1.0, jnp.asarray(True), jnp.asarray(False), (0.0, 0.0))
     without, _ = update()
     at_10_hz, _ = update(dt=jnp.asarray(0.096))
     at_50_hz, _ = update(dt=jnp.asarray(0.02))
@@ -70,7 +70,7 @@ def test_compass_information_is_counted_per_time_at_most_once_per_10_hz_sample()
     five = fs
     for _ in range(5):
         five, _ = offset_filter.update(params, five, jnp.asarray(0.05), jnp.asarray(0.03), jnp.asarray(0.3), 1.0,
-                                       jnp.asarray(True), jnp.asarray(False), jnp.asarray(0.0), dt=jnp.asarray(0.02))
+                                       jnp.asarray(True), jnp.asarray(False), (0.0, 0.0), dt=jnp.asarray(0.02))
     assert float(five.delta) == pytest.approx(float(without.delta), rel=0.15)
 
 
