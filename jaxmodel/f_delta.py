@@ -17,6 +17,7 @@ from . import field_tilt as _field_tilt
 from . import heading_filter as _hf
 from . import follow as _follow
 from . import offset_filter as _offset
+from . import soft_iron as _soft
 from .angles import safe_div, wrap
 from .packed import computed_once
 from .params import deg
@@ -73,14 +74,17 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _offset.drifting(params, offset)
     drift_significant = _offset.drifting_significantly(params, offset)
-    tilt = _field_tilt.tilt_gain(params, wheel_heading + state.steady.delta)
+    ln_reference, has_reference = _field_tilt.reference(params, state.field_sum, state.field_count, state.soft_field,
+                                                        _soft.harmonics(jnp.where(compass_ok, h_c_raw, 0.0)))
+    tilt = _field_tilt.roll_reaching_heading(params, _field_tilt.tilt_gain(params, wheel_heading + state.steady.delta),
+                                             has_reference)
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                           absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
                                           dt=odo["dt"], young=young)
-    # |B| against a given B_E measures the grade's and the roll's errors (jaxmodel/field_tilt.py), on clean samples.
+    # |B| against B_E (given, else learned) measures the grade's and the roll's errors (jaxmodel/field_tilt.py), on clean samples.
     field_ok = absolute_ok & ~initializing & compass_ok & ~map_used & (clean_weight > 0.5)
-    offset = _field_tilt.update(params, offset, b_m, tilt, field_ok, d_t, odo["dt"])
+    offset = _field_tilt.update(params, offset, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference, has_reference)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
@@ -89,7 +93,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
                                                     absolute_ok & ~initializing, drifting, tilt, d_lost,
                                                     drift_significant, dt=odo["dt"], young=young,
                                                     with_lost_restart=True)
-    steady = _field_tilt.update(steady_params, steady, b_m, tilt, field_ok, d_t, odo["dt"])
+    steady = _field_tilt.update(steady_params, steady, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference,
+                                has_reference)
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
     # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts

@@ -111,7 +111,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_gm_sigma_deg", 1.0, "deg", "stationary sigma of the compass's coloured error"),
     ParamSpec("filter_tilt_sigma_deg", 3.0, "deg", "stationary sigma of the tilt error: the heading error of a level-mounted compass heading magnetic east or west on a grade (tan(dip) x pitch; nothing heading north or south)"),
     ParamSpec("filter_tilt_m", 1000.0, "m", "correlation distance of the tilt error (road grades)"),
-    ParamSpec("filter_field_sigma", 0.0, "1", "noise of ln(|B| / B_E) per compass measurement when the field magnitude is read as the compass's grade and roll errors (jaxmodel.field_tilt; needs field_magnitude > 0; 0 = not read, the default: docs/tuning.md stop 58, 0.02 measured)"),
+    ParamSpec("filter_field_sigma", 0.04, "1", "noise of ln(|B| / B_E) per compass measurement, |B| read as the compass's grade and roll errors against B_E given or learned (jaxmodel.field_tilt; 0 = not read; docs/tuning.md stop 59)"),
     ParamSpec("filter_check_m", 2.53, "m", "distance over which DELTA's agreement with the wheels is averaged (disturbance detection)"),
     ParamSpec("filter_check_sigma_deg", 1.389, "deg", "expected spread of that average on a clean compass"),
     ParamSpec("filter_gate_sigma", 0.4081, "1", "soft gate: compass variance inflated by 1 + (disturbance/sigma)^2 / this^2, and beyond this many sigmas of innovation"),

@@ -125,10 +125,25 @@ def coefficients(sf, taken_out=NO_TABLE):
     u4 = y[4] - low[4][4] * centre[1]
     z = jnp.sqrt((u3 * u3 + u4 * u4) / (variance * CORRELATION_M) + 1e-30)
     keep = jnp.maximum(z - Z0, 0.0) / z
-    spread = jnp.maximum(f.n01 * f.n01 + f.n02 * f.n02, f.n03 * f.n03 + f.n04 * f.n04)
-    covered = spread < (COVER * COVER) * weight * weight
-    keep = jnp.where(covered, keep, 0.0)  # (no sample: 0 < 0 is not covered)
+    keep = jnp.where(_covered(f), keep, 0.0)
     return -keep * (c[3] - centre[0]), keep * (c[4] - centre[1])
+
+
+def _covered(f):
+    """Whether the headings span enough of the circle: |E[exp(iA)]| and |E[exp(2iA)]| both below COVER."""
+    spread = jnp.maximum(f.n01 * f.n01 + f.n02 * f.n02, f.n03 * f.n03 + f.n04 * f.n04)
+    return spread < (COVER * COVER) * f.n00 * f.n00  # (no sample: 0 < 0 is not covered)
+
+
+def magnitude_without_first_harmonic(sf, harmonics_of_a):
+    """(c0 + a2 cos 2A + b2 sin 2A, covered): the regression's ln|B| at compass heading A without its first
+    harmonic, which is what a grade, a roll or a hard-iron residual add (jaxmodel/field_tilt.py reads |B| against it),
+    and whether the headings cover the circle (``coefficients``' test): on one arc the harmonics are not told apart
+    from the constant.  The ridge prior is centred on 0 (the soft iron itself, not beyond a table)."""
+    f = sf.fields()
+    c, _, _ = _cholesky_solve(f, (0.0, 0.0))
+    s2, c2 = harmonics_of_a[-2:]
+    return c[0] + c[3] * c2 + c[4] * s2, _covered(f)
 
 
 def deviation(sf, harmonics_of_a, taken_out=NO_TABLE):
