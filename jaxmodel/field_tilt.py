@@ -56,6 +56,9 @@ FIELD_HARD_GATE = 3.0
 """Innovations of ln(|B| / B_E) beyond this many sigmas are not read at all: an anomaly the heading filter let through
 walked r to 12 deg under the soft gate alone (judge-like urban_hilly/95, stop 59)."""
 
+CLEAN_WEIGHT = 0.5
+"""|B| is read only on samples the heading filter weighed above this (its clean weight, ``offset_filter.update``)."""
+
 REFERENCE_MIN_M = 300.0
 """Metres of clean |B| a learned reference needs before |B| is read against it."""
 

@@ -243,13 +243,19 @@ def _learn_soft_iron(params, state, config, fd, compass_less_wheels, harmonics, 
              & (params.filter_scale_sigma0 <= 0.0))
     soft_iron = _soft.update(state.soft_iron, wrap(compass_less_wheels), harmonics, alpha, d_t, clean,
                              deg(params.filter_compass_sigma_deg) / fd["sigma"])
+    return soft_iron, _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart)
+
+
+def _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart):
+    """The regression of ln|B| on the heading's harmonics (jaxmodel/soft_iron_field.py) after F-DELTA: the soft iron
+    it reads, and the reference |B| is read against as the grade's and the roll's errors (jaxmodel/field_tilt.py),
+    which every robust mode reads, whether or not the soft iron is taken out of the heading."""
     # The sums start again with B_E per heading (a hard-iron or a lost filter's restart empties its bins) and
     # when the offsets shift.
     restart = hard_iron_restart | fd["field_restart"]
     if _fdelta.learns_shift(config):
         restart = restart | (fd["shift"].ox != state.shift.ox) | (fd["shift"].oy != state.shift.oy)
-    soft_field = _sfield.update(state.soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
-    return soft_iron, soft_field
+    return _sfield.update(state.soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
 
 
 def _soft_iron_taken_out(params, state, config, h_c_raw):
@@ -367,6 +373,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         soft_iron, soft_field = _learn_soft_iron(params, state, config, fd, h_c_read - wheel_heading, harmonics, alpha,
                                                  d_t, b_m, b_e, compass_ok, initialized, initializing,
                                                  hard_iron_restart)
+    elif robust and config.mode != "compass":
+        soft_field = _read_soft_field(state, config, fd, _soft.harmonics(h_c_raw), d_t, b_m, b_e, compass_ok,
+                                      hard_iron_restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
