@@ -11,7 +11,7 @@ which measures g heading north or south, where the heading says nothing of it, a
 heading then takes out what the grade and the roll turn it by.  (A constant error of the same vector, a residual of
 the hard-iron calibration along the car's axes, is read the same way.)  Outside anomalies the independent
 simulator's |B| follows this to 1.1-1.4 % (docs/tuning.md, "Stop 58"); anomalies, which also change the heading, are
-left out by the heading's own rejection (``clean``) and a soft gate on this innovation.
+left out by the heading's own rejection (``clean``) and a gate on this innovation (FIELD_HARD_GATE).
 
 B_E is the one the user gave (``field_magnitude`` > 0), else learned on the drive (``reference``).  Not B_E per
 heading (FIG. 8C, claim 13): learned per heading it learns the grades too (stops 21 and 41).  Its first harmonic is
@@ -31,12 +31,10 @@ from . import soft_iron_field as _sfield
 from .angles import sin_polynomial
 from .params import deg
 
-FIELD_GATE_SIGMA = 3.0
-"""Soft gate (sigmas) on the innovation of ln(|B| / B_E): an anomaly's change of |B| beyond it counts as less."""
-
 ROLL_SIGMA_DEG = 1.5
 """Stationary sigma of the roll state r (deg of heading error heading magnetic north or south): crossfall of 1-2.5 %
-at a dip of 60-70 deg is 1.5-3.5 deg (first guess, not fitted).  Reaches the heading only once |B| is read (``roll_reaching_heading``)."""
+at a dip of 60-70 deg is 1.5-3.5 deg (first guess, not fitted).  Reaches the heading only once |B| is read
+(``roll_reaching_heading``)."""
 
 
 def tilt_gain(params, heading):
@@ -95,7 +93,8 @@ def roll_reaching_heading(params, tilt, has_reference):
 def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
-    metres and COMPASS_CORR_S seconds), soft-gated at FIELD_GATE_SIGMA and not read beyond FIELD_HARD_GATE.  ``b_m``:
+    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (so ``measure``'s soft gate at the
+    same sigmas never inflates what is read).  ``b_m``:
     |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a clean compass sample
     while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``, without a reference
     or where |B| is not read (``reads_field``)."""
@@ -109,5 +108,5 @@ def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     _, p_hh = _of.projected(_of.covariance(f, len(_of.STATES)), h)
     innovation = field_dev - _of.dot(h, [getattr(f, state) for state in _of.STATES])
     ok = ok & (innovation ** 2 < FIELD_HARD_GATE ** 2 * (p_hh + variance))
-    new = _of.measure(fs, h, field_dev, variance, FIELD_GATE_SIGMA)
+    new = _of.measure(fs, h, field_dev, variance, FIELD_HARD_GATE)
     return _of.OffsetState(jnp.where(ok, new.vector, fs.vector))
