@@ -82,7 +82,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                           absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
                                           dt=odo["dt"], young=young)
-    # |B| against B_E (given, else learned) measures the grade's and the roll's errors (jaxmodel/field_tilt.py), on clean samples.
+    # |B| against B_E (given, else learned) measures the grade's and the roll's errors (jaxmodel/field_tilt.py), on
+    # clean samples.
     field_ok = absolute_ok & ~initializing & compass_ok & ~map_used & (clean_weight > _field_tilt.CLEAN_WEIGHT)
     offset = _field_tilt.update(params, offset, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference, has_reference)
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))

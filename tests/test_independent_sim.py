@@ -66,8 +66,8 @@ def test_a_hidden_tyre_mismatch_is_found_and_the_highway_heading_follows_its_res
     as a user who never measured the mismatch has it: the calibration finds the ratio, and the heading follows the
     calibrated ratio's residual drift (``calibration.corrected``: measured 1.89 deg; 3.98 deg before stop 47, when
     the steady F-DELTA lagged 1.2 deg/km of wheel drift by 6-8 deg for the drive's last 15 km; 1.96 deg with the true
-    dpp).  Since stop 59 the default reads |B| as the grade's and the roll's errors (jaxmodel/field_tilt.py), and on this
-    drive that is worse, said plainly: 3.45 deg (a 14-µT anomaly 34 minutes in leaves g at -4 to -6 deg while the
+    dpp).  Since stop 59 the default reads |B| as the grade's and the roll's errors (jaxmodel/field_tilt.py), and on
+    this drive that is worse, said plainly: 3.45 deg (a 14-µT anomaly 34 minutes in leaves g at -4 to -6 deg while the
     wheels drift, and the heading 6-7 deg off for minutes); the bar of 2.5 deg holds with |B| not read (2.44 deg)."""
     path, params_path = sim.make_drive("highway", 1, tmp_path, duration=2400.0)
     truth = json.loads(Path(params_path).read_text())

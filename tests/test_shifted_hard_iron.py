@@ -88,9 +88,10 @@ def test_a_shifted_hard_iron_is_learned_from_the_wheels_heading():
     """urban/hard_iron_shift/105 (held-out seed): the offsets jump by (-3.55, 4.07) µT at 309 s.  While the filter
     rejects the compass, the residual of the field against the one expected at the wheels' heading is the same
     vector in the vehicle as it turns (jaxmodel/compass_shift.py), and the offsets move by it: measured 0.39 deg
-    RMSE after the first minute, 1.82 deg without (Config(compass_shift=False), |B| not read); the learned change is (-3.12, 4.06)
-    µT.  (Until stop 55 the test drove mixed/hard_iron_shift/101, 0.61 against 1.74 deg; since a rejection is
-    released, not reset, by an accepted sample, the heading filter alone keeps that shift out: 0.52 deg.)"""
+    RMSE after the first minute, 1.82 deg without (Config(compass_shift=False), |B| not read); the learned change is
+    (-3.12, 4.06) µT.  (Until stop 55 the test drove mixed/hard_iron_shift/101, 0.61 against 1.74 deg; since a
+    rejection is released, not reset, by an accepted sample, the heading filter alone keeps that shift out: 0.52
+    deg.)"""
     drive = sc.make_drive("urban", "hard_iron_shift", 105)
     shift = drive.notes["hard_iron_shift"]
     final, out = _final_state_and_outputs(drive)
