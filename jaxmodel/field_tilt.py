@@ -93,8 +93,7 @@ def roll_reaching_heading(params, tilt, has_reference):
 def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
-    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (so ``measure``'s soft gate at the
-    same sigmas never inflates what is read).  ``b_m``: |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from
+    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard gate).  ``b_m``: |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from
     ``tilt_gain``; ``ok`` (bool): a clean compass sample while moving; ``ln_reference``, ``has_reference``:
     ``reference``.  Unchanged where not ``ok``, without a reference or where |B| is not read (``reads_field``)."""
     from . import offset_filter as _of  # it reads ROLL_SIGMA_DEG and reads_field from here
@@ -102,10 +101,5 @@ def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     ok = ok & reads_field(params) & has_reference & (d_t > 0.0) & (b_m > 0.0)
     field_dev = jnp.where(ok, jnp.log(jnp.where(ok, b_m, 1.0)) - ln_reference, 0.0)
     variance = params.filter_field_sigma ** 2 * _of.samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
-    h = [0, 0, 0, 0, -tilt[1], tilt[0]]
-    f = fs.fields()
-    _, p_hh = _of.projected(_of.covariance(f, len(_of.STATES)), h)
-    innovation = field_dev - _of.dot(h, [getattr(f, state) for state in _of.STATES])
-    ok = ok & (innovation ** 2 < FIELD_HARD_GATE ** 2 * (p_hh + variance))
-    new = _of.measure(fs, h, field_dev, variance, FIELD_HARD_GATE)
+    new = _of.measure(fs, [0, 0, 0, 0, -tilt[1], tilt[0]], field_dev, variance, FIELD_HARD_GATE, hard=True)
     return _of.OffsetState(jnp.where(ok, new.vector, fs.vector))

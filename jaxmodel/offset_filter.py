@@ -34,8 +34,8 @@ weighs it by the heading (``field_tilt.tilt_gain``) and, at a turn, tells g from
 Grades change over hundreds of metres, so g is Gauss-Markov over ``filter_tilt_m``, of stationary sigma
 ``filter_tilt_sigma_deg`` (docs/tuning.md, "Stop 21").  A roll puts B_V on the lateral axis instead: r, its
 heading error heading magnetic north or south, of sigma ``field_tilt.ROLL_SIGMA_DEG``.  Both change |B| as well,
-by -g cos(psi_m) + r sin(psi_m): where the user gave B_E (``field_magnitude``) and asked for it
-(``filter_field_sigma``), ``field_tilt.update`` measures them by it; else r stays 0 and |B| is not read.
+by -g cos(psi_m) + r sin(psi_m): ``field_tilt.update`` measures them by it against B_E given or learned
+(``field_tilt.reference``), unless ``filter_field_sigma`` is 0; then r stays 0 and |B| is not read.
 
 The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B, T_F, a or dpp
 are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
@@ -205,7 +205,8 @@ def init_offset_state(params):
 
 def roll_variance(params):
     """The roll state's stationary variance (rad^2): deg(ROLL_SIGMA_DEG)^2 where |B| is read
-    (``field_tilt.reads_field``), else 0, and r stays 0: the heading alone cannot tell it from F-DELTA heading north or south."""
+    (``field_tilt.reads_field``), else 0, and r stays 0: the heading alone cannot tell it from F-DELTA heading north
+    or south."""
     return jnp.where(reads_field(params), deg(ROLL_SIGMA_DEG) ** 2, 0.0)
 
 
@@ -419,16 +420,21 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     return out, weight
 
 
-def measure(fs, h, value, variance, gate):
+def measure(fs, h, value, variance, gate, hard=False):
     """``fs`` (an OffsetState) updated by a measurement ``value`` = h x of ``variance``, h a row over STATES (a list;
     Python 0s and 1s cost nothing), the variance inflated beyond ``gate`` sigmas of the innovation
-    (``unrolled.gated_scalar_update``).  The field's magnitude (``field_tilt.update``) measures g and r so."""
+    (``unrolled.gated_scalar_update``); with ``hard``, not updated at all beyond them (so the inflation never acts).
+    The field's magnitude (``field_tilt.update``) measures g and r so, hard-gated."""
     f = fs.fields()
     x = [getattr(f, state) for state in STATES]
     P = covariance(f, _N)
     ph, p_hh = projected(P, h)
-    new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, value - dot(h, x), variance, gate ** 2)
-    return OffsetState.pack(f._replace(**dict(zip(STATES, new_x)), **new_p))
+    nu = value - dot(h, x)
+    new_x, new_p, _ = gated_scalar_update(x, P, ph, p_hh, nu, variance, gate ** 2)
+    new = OffsetState.pack(f._replace(**dict(zip(STATES, new_x)), **new_p))
+    if not hard:
+        return new
+    return OffsetState(jnp.where(nu ** 2 < gate ** 2 * (p_hh + variance), new.vector, fs.vector))
 
 
 def measure_state(fs, name, value, variance, gate):
