@@ -5,16 +5,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxmodel import field_tilt
 
 from independent_drives import heading_error_deg, independent_sim, unidentified_params
 
 
 def _error_deg(tmp_path, kind, seed, hide_mismatch=False, read_field=True, disable=()):
     """(time s, heading error deg) of the default mode on an independent drive; ``hide_mismatch`` gives both wheels
-    the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does); ``read_field`` reads |B|
-    against the drive's field_magnitude (jaxmodel/field_tilt.py, filter_field_sigma); ``disable``: the simulator's
-    features switched off."""
+    the tyres' mean distance per pulse (what bench_independent.py --hide-mismatch does); ``read_field`` False sets
+    filter_field_sigma 0 (|B| not read; the default reads it against the drive's field_magnitude,
+    jaxmodel/field_tilt.py); ``disable``: the simulator's features switched off."""
     path, params_path = independent_sim.make_drive(kind, seed, tmp_path, disable=disable)
     params = unidentified_params(params_path)
     if hide_mismatch:
