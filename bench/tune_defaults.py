@@ -9,6 +9,7 @@ and fitted values and the loss; paste the fitted values into jaxmodel/params.py 
 they are frozen).
 
     .venv/bin/python bench/tune_defaults.py [--iterations 60] [--duration 600] [--seeds 101,102,103] [--start FIT.json]
+        [--keys filter_field_sigma,filter_tilt_sigma_deg]
 """
 
 import argparse
@@ -32,7 +33,7 @@ TUNED = ("filter_steady_turn_sigma", "filter_rate_significance", "filter_reject_
          "filter_offset_psd", "filter_rate_psd", "filter_rate_sigma0", "filter_check_m", "filter_check_sigma_deg",
          "filter_gate_sigma", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_ec_weight",
          "filter_turn_sigma", "filter_sigma0_deg", "filter_gm_m", "filter_gm_sigma_deg", "filter_tilt_sigma_deg",
-         "filter_tilt_m")
+         "filter_tilt_m", "filter_field_sigma")
 """Only constants of the default mode's filter: the kf_* keys of the Kalman mode stay as bench/tune_kalman.py fitted them."""
 CONDITIONS = tuple(c for c in sc.CONDITIONS if c not in sc.NO_COMPASS_CONDITIONS and c != "mismatch_0")
 
@@ -44,7 +45,12 @@ def main():
     ap.add_argument("--seeds", default=",".join(str(s) for s in sc.TUNING_SEEDS))
     ap.add_argument("--learning-rate", type=float, default=0.08)
     ap.add_argument("--start", help="JSON file of filter constants to start from (default: jaxmodel/params.py)")
+    ap.add_argument("--keys", help="comma-separated subset of the constants to fit (default: all of TUNED)")
     args = ap.parse_args()
+    keys = args.keys.split(",") if args.keys else list(TUNED)
+    unknown = sorted(set(keys) - set(TUNED))
+    if unknown:
+        ap.error(f"--keys: not a fitted constant: {', '.join(unknown)} (known: {', '.join(TUNED)})")
     seeds = [int(s) for s in args.seeds.split(",")]
     assert not set(seeds) & set(sc.EVALUATION_SEEDS), "never tune on the evaluation seeds"
 
@@ -61,7 +67,7 @@ def main():
     print(f"{len(drives)} tuning drives (seeds {seeds}), {int(mask.sum())} samples, built in "
           f"{time.perf_counter() - t0:.1f} s")
 
-    theta0 = {k: jnp.log(getattr(params, k)[0]) for k in TUNED}
+    theta0 = {k: jnp.log(getattr(params, k)[0]) for k in keys}
 
     def loss(theta):
         p = params._replace(**{k: jnp.broadcast_to(jnp.exp(v), getattr(params, k).shape) for k, v in theta.items()})
@@ -88,7 +94,7 @@ def main():
               f"{time.perf_counter() - t1:.1f} s", flush=True)
     print(f"\nbest loss {best[0]:.4f} (start {float(loss(theta0)):.4f})")
     print("key, start, fitted:")
-    for k in TUNED:
+    for k in keys:
         print(f"  {k:26s} {float(np.exp(theta0[k])):.4g} -> {float(np.exp(best[1][k])):.4g}")
 
 

@@ -230,20 +230,18 @@ def _learns_soft_iron(config):
     return config.soft_iron and config.robust and config.mode != "compass"
 
 
-def _learn_soft_iron(params, state, config, fd, compass_less_wheels, harmonics, alpha, d_t, b_m, b_e, compass_ok,
-                     initialized, initializing, hard_iron_restart):
-    """The soft iron's deviation learned from the wheels' turns (jaxmodel/soft_iron.py) and from B_E per heading
-    (jaxmodel/soft_iron_field.py), after F-DELTA (``fd``, the robust F-DELTA's dict).  ``compass_less_wheels``
-    (rad): the compass heading with the field's deviation taken out, less the wheel heading.  Returns (soft_iron,
-    soft_field)."""
+def _learn_soft_iron(params, state, fd, compass_less_wheels, harmonics, alpha, d_t, compass_ok, initialized,
+                     initializing):
+    """The soft iron's deviation learned from the wheels' turns (jaxmodel/soft_iron.py) after F-DELTA (``fd``, the
+    robust F-DELTA's dict).  ``compass_less_wheels`` (rad): the compass heading with the field's deviation taken out,
+    less the wheel heading.  Returns the soft_iron state."""
     # Only where the filter took the compass as clean, and only from the turns of an identified vehicle: with
     # the scale state on (an unidentified one) every turn is ~10 % wrong, and a grid's turns at few headings
     # put that into (p, q) too (urban/baseline/201 with nominal parameters: 1.77 -> 2.14 deg).
     clean = (compass_ok & (fd["clean_weight"] > 0.5) & (initialized > 0.5) & ~initializing & ~fd["map_used"]
              & (params.filter_scale_sigma0 <= 0.0))
-    soft_iron = _soft.update(state.soft_iron, wrap(compass_less_wheels), harmonics, alpha, d_t, clean,
-                             deg(params.filter_compass_sigma_deg) / fd["sigma"])
-    return soft_iron, _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart)
+    return _soft.update(state.soft_iron, wrap(compass_less_wheels), harmonics, alpha, d_t, clean,
+                        deg(params.filter_compass_sigma_deg) / fd["sigma"])
 
 
 def _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart):
@@ -369,13 +367,13 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
                                   wheel_heading, initialized, initializing)
 
     soft_iron, soft_field = state.soft_iron, state.soft_field
-    if _learns_soft_iron(config):
-        soft_iron, soft_field = _learn_soft_iron(params, state, config, fd, h_c_read - wheel_heading, harmonics, alpha,
-                                                 d_t, b_m, b_e, compass_ok, initialized, initializing,
-                                                 hard_iron_restart)
-    elif robust and config.mode != "compass":
-        soft_field = _read_soft_field(state, config, fd, _soft.harmonics(h_c_raw), d_t, b_m, b_e, compass_ok,
-                                      hard_iron_restart)
+    if robust and config.mode != "compass":
+        if _learns_soft_iron(config):
+            soft_iron = _learn_soft_iron(params, state, fd, h_c_read - wheel_heading, harmonics, alpha, d_t,
+                                         compass_ok, initialized, initializing)
+        else:
+            harmonics = _soft.harmonics(h_c_raw)
+        soft_field = _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
     refine_state, a = _refine.refine_step(
