@@ -20,7 +20,7 @@ what g and r are, so the learned reference is the regression of ln|B| on the hea
 iron's, which g and r must not read), before that the drive's distance-weighted mean of |B|.  A hard innovation gate
 (FIELD_HARD_GATE) keeps an anomaly the heading filter let through from walking g or r away, and r does not reach the
 heading before there is a reference.  Stop 59 measured it on four sets of drives and made it the default
-(``filter_field_sigma`` 0.04; docs/tuning.md, "Stop 59").
+(``filter_field_sigma``; docs/tuning.md, "Stop 59"; its value refitted by gradient descent at stop 60).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ REFERENCE_MIN_M = 300.0
 
 
 def reads_field(params):
-    """Whether |B| is read as a measurement of g and r: ``filter_field_sigma`` > 0 (the default, 0.04)."""
+    """Whether |B| is read as a measurement of g and r: ``filter_field_sigma`` > 0 (the default, 0.07)."""
     return params.filter_field_sigma > 0.0
 
 

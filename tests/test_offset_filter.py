@@ -119,7 +119,7 @@ def test_the_field_magnitude_is_read_only_against_a_reference_and_when_asked_for
     beyond FIELD_HARD_GATE sigmas (an anomaly: 23 µT on 20 is 0.14 in ln, 3.5 sigmas at 0.04)."""
     rng = np.random.default_rng(3)
     off = params._replace(filter_field_sigma=jnp.asarray(0.0))
-    assert float(jm.make_params().filter_field_sigma) == 0.04
+    assert float(jm.make_params().filter_field_sigma) == 0.07
     assert float(of.init_offset_state(off).fields().p55) == 0.0
     assert float(of.init_offset_state(params).fields().p55) == pytest.approx(np.radians(ft.ROLL_SIGMA_DEG) ** 2)
     fs, _, _ = _random_state(params, rng)

@@ -364,7 +364,9 @@ def test_a_counter_that_wraps_at_another_modulus_is_decoded_exactly():
 def test_a_spike_that_returns_leaves_nothing_behind():
     """A +3000-count spike on one counter for one sample: the pulses removed at the spike and at its return are the
     same number (the return snaps to it), so after the return the counts are exactly the clean ones and the heading
-    differs by no more than the one-sample wobble it had (plausibility.SNAP_PULSES)."""
+    differs by no more than the one-sample wobble it had (plausibility.SNAP_PULSES).  The wobble's bar was 0.02 deg; since
+    stop 60's refit of the tilt's constants (a shorter memory, filter_tilt_m 593 m) it is 0.0375 deg, and the bar 0.05
+    deg (the issue's glitch bar is 0.1 deg of RMSE)."""
     drive = sc.make_drive("highway", "baseline", 102, duration_s=240.0)
     moving = np.flatnonzero(np.asarray(drive.truth["speed_mps"]) > 10.0)
     at = int(moving[len(moving) // 2])
@@ -374,7 +376,7 @@ def test_a_spike_that_returns_leaves_nothing_behind():
                               drive.truth, drive.params)
     diff = np.degrees(np.abs(np.asarray(_run(spiked).heading) - np.asarray(_run(drive).heading)))
     assert diff[:at].max() == 0.0
-    assert diff[at + 2:].max() < 0.02, diff[at + 2:].max()
+    assert diff[at + 2:].max() < 0.05, diff[at + 2:].max()
 
 
 @pytest.mark.slow
