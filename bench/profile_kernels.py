@@ -1,7 +1,7 @@
 """Which XLA:CPU kernels the vmapped scan of one configuration spends its time in (the tool that found
 stop 21's slowdown: a sine repeated in 22 kernels, a flag recomputed for every field of a packed state).
 
-    .venv/bin/python bench/profile_kernels.py [--config default|complementary|seed] [--drives 64] [--top 15]
+    .venv/bin/python bench/profile_kernels.py [--config default|complementary|seed] [--drives 64] [--samples 200] [--top 15]
 
 Runs ``jax.profiler`` over one batch (bench_run.make_batch) and prints, per kernel (thunk) of the scan's
 body, its median duration per step, with the kernel count per step and the sum.  The profiler adds
@@ -48,7 +48,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", choices=sorted(CONFIGS), default="default")
     ap.add_argument("--drives", type=int, default=64)
-    ap.add_argument("--samples", type=int, default=900)
+    # The profiler's event buffer is bounded: the default's ~640 kernels per step over 900 steps overflowed it and no
+    # kernel reached ``steps`` events, so nothing was printed (stop 60); 200 steps fit.
+    ap.add_argument("--samples", type=int, default=200)
     ap.add_argument("--top", type=int, default=15)
     args = ap.parse_args()
     batch, _, _ = make_batch(args.drives, args.samples)
