@@ -116,7 +116,7 @@ def test_the_field_magnitude_update_is_the_dense_kalman_update(params, seed):
 def test_the_field_magnitude_is_read_only_against_a_reference_and_when_asked_for(params):
     """With ``filter_field_sigma`` 0 |B| changes nothing and the roll state stays 0 with no variance; nor is a sample
     read without a reference (``field_tilt.reference``), that was not clean, while standing, or whose innovation is
-    beyond FIELD_HARD_GATE sigmas (an anomaly: 23 µT on 20 is 0.14 in ln, 3.5 sigmas at 0.04)."""
+    beyond FIELD_HARD_GATE sigmas (an anomaly: here |B| 100 times the expected, 4.6 in ln)."""
     rng = np.random.default_rng(3)
     off = params._replace(filter_field_sigma=jnp.asarray(0.0))
     assert float(jm.make_params().filter_field_sigma) == 0.07
