@@ -17,7 +17,6 @@ from . import field_tilt as _field_tilt
 from . import heading_filter as _hf
 from . import follow as _follow
 from . import offset_filter as _offset
-from . import soft_iron as _soft
 from .angles import safe_div, wrap
 from .packed import computed_once
 from .params import deg
@@ -38,12 +37,14 @@ def captures_drift(config):
     return config.calibration and config.robust and config.mode in ("complementary", "kalman")
 
 
-def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c, compass_ok,
-                   wheel_heading, initialized, initializing):
+def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_of_raw, b_m, b_e, e_w, e_c,
+                   compass_ok, wheel_heading, initialized, initializing):
     """FIG. 8E-8H as issue 10 runs them: SDD and F (8E, before the map selector 8F, so SD_N judges
     the compass), the map selector, and F-DELTA by the rate and steady offset filters of
-    jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  Returns a dict
-    of the new state's fields and the complementary heading EH = H_W + F-DELTA (rad)."""
+    jaxmodel/offset_filter.py; B_E per heading learned from clean samples (claim 13).  ``h_c_raw``: H_C with the
+    soft iron's deviation taken out; ``harmonics_of_raw``: ``soft_iron.harmonics`` of H_C before that, the heading
+    the field's regression is read at.  Returns a dict of the new state's fields and the complementary heading
+    EH = H_W + F-DELTA (rad)."""
     d_t, alpha = odo["d_t"], odo["alpha"]
     # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
     # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
@@ -75,7 +76,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e
     drifting = _offset.drifting(params, offset)
     drift_significant = _offset.drifting_significantly(params, offset)
     ln_reference, has_reference = _field_tilt.reference(params, state.field_sum, state.field_count, state.soft_field,
-                                                        _soft.harmonics(jnp.where(compass_ok, h_c_raw, 0.0)))
+                                                        harmonics_of_raw)
     tilt = _field_tilt.roll_reaching_heading(params, _field_tilt.tilt_gain(params, wheel_heading + state.steady.delta),
                                              has_reference)
     d_lost = _offset.lost_distance(d_t, odo["dt"])

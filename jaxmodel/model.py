@@ -256,19 +256,19 @@ def _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, ha
     return _sfield.update(state.soft_field, harmonics, b_m, b_e, d_t, compass_ok & (d_t > 0.0), restart)
 
 
-def _soft_iron_taken_out(params, state, config, h_c_raw):
+def _soft_iron_taken_out(params, state, config, h_c_raw, harmonics):
     """(H_C as read less the deviation the field's magnitude per heading says, H_C less the soft iron the wheels'
-    turns learned too, the heading's harmonics) (rad); without ``_learns_soft_iron``: (h_c_raw, h_c_raw, None).
+    turns learned too) (rad); without ``_learns_soft_iron``: (h_c_raw, h_c_raw).  ``harmonics``: those of the raw
+    H_C (``soft_iron.harmonics``), at which both deviations are read.
 
     The soft iron's deviation read from B_E per heading (jaxmodel/soft_iron_field.py), then what the wheels' turns
     learned of the rest (jaxmodel/soft_iron.py), taken out of the compass."""
     if not _learns_soft_iron(config):
-        return h_c_raw, h_c_raw, None
-    harmonics = _soft.harmonics(h_c_raw)
+        return h_c_raw, h_c_raw
     # Less what the deviation table's second harmonic took out already (a calibrated compass).
     table = _sfield.table_deviation(params.deviation_deg, deg(params.variation_deg - params.rotation_deg))
     h_c_read = wrap(h_c_raw - _sfield.deviation(state.soft_field, harmonics, table))
-    return h_c_read, wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics)), harmonics
+    return h_c_read, wrap(h_c_read - _soft.deviation(state.soft_iron, harmonics))
 
 
 def _dequantized(state, config, odo, heading, initializing, initialized):
@@ -337,7 +337,10 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     else:
         b_e, seed_field = _fdelta.seed_expected_field(params, state, b_m, compass_ok)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
-    h_c_read, h_c_raw, harmonics = _soft_iron_taken_out(params, state, config, h_c_raw)
+    # The raw heading's harmonics, once per sample: the soft-iron regressions learn on them, and the reference |B| is
+    # read at them (the raw H_C is 0 where the compass is invalid: never a NaN).
+    harmonics = _soft.harmonics(h_c_raw)
+    h_c_read, h_c_raw = _soft_iron_taken_out(params, state, config, h_c_raw, harmonics)
     h_c = jnp.where(compass_ok, h_c_raw, state.compass_heading)
 
     # FIG. 8B: wheel heading; the first valid compass sample starts it (odometer mode too), in the Kalman mode also
@@ -360,7 +363,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
 
     # FIG. 8E-8H: SDD, F, the map selector and F-DELTA.
     if robust:
-        fd = _fdelta.robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, b_m, b_e, e_w, e_c,
+        fd = _fdelta.robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics, b_m, b_e, e_w, e_c,
                                     compass_ok, wheel_heading, initialized, initializing)
     else:
         fd = _fdelta.seed_f_delta(params, state, sample, odo, h_c, seed_field, e_w, e_c, compass_ok,
@@ -371,8 +374,6 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         if _learns_soft_iron(config):
             soft_iron = _learn_soft_iron(params, state, fd, h_c_read - wheel_heading, harmonics, alpha, d_t,
                                          compass_ok, initialized, initializing)
-        else:
-            harmonics = _soft.harmonics(h_c_raw)
         soft_field = _read_soft_field(state, config, fd, harmonics, d_t, b_m, b_e, compass_ok, hard_iron_restart)
 
     # US 4,788,645 eq. (9)-(13): refinement of a (uses the compass, not the map).
