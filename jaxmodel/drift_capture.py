@@ -3,7 +3,7 @@
 ``calibrate`` runs the seed's calibration (``calibration.calibration_step``), then, in the robust complementary and
 Kalman modes (``f_delta.captures_drift``), confirms a drift of the wheel heading that the rate filter measures:
 
-* a large, significant drift (``offset_filter.large_drift``, beyond CAPTURE_RATE_Z sigmas) is a tyre mismatch and is
+* a large, significant drift (``rate_significance.large_drift``, beyond CAPTURE_RATE_Z sigmas) is a tyre mismatch and is
   captured into the ratio at once (``calibration.capture_rate``);
 * a smaller one that the stretches corroborate (``corroborated``) restarts the steady filter's follow hold, so the
   heading follows the rate filter while the stretches refine the ratio;
@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from . import calibration as _cal
 from . import f_delta as _fdelta
 from . import offset_filter as _offset
+from . import rate_significance as _rate
 from .angles import safe_div as _safe_div
 from .packed import computed_once
 
@@ -53,14 +54,14 @@ def corroborated(params, cs, rate_filter, track):
     (filter_follow_hold_rate) and the show rate's smooth step, and under the stretches' significance for 20 km
     (independent simulator, highway seed 61, 0.017 % hidden: the rate filter 70-90 µrad/m at 4-6 sigmas, the stretches'
     unapplied mean 90-160 µrad/m at 1.3-2.8 sigmas; the steady filter lagged 17 deg; docs/tuning.md, stop 53).  Each
-    test alone is weak, both together are not met on any drive of the matrix.  drifting (``offset_filter.drifting``)
+    test alone is weak, both together are not met on any drive of the matrix.  drifting (``rate_significance.drifting``)
     keeps out rates too small to matter.  cs: the calibration state; track: T (m)."""
     stretch_rate, stretch_z = _cal.stretches_rate(params, cs, track)
     beta = rate_filter.beta
     same_size = (stretch_rate * beta > 0.0) & (CORROBORATED_FACTOR * jnp.abs(stretch_rate) > jnp.abs(beta)) & (
         jnp.abs(stretch_rate) < CORROBORATED_FACTOR * jnp.abs(beta))
     return (_beyond(rate_filter, CORROBORATED_RATE_Z) & (stretch_z > CORROBORATED_STRETCH_Z) & same_size
-            & _offset.drifting(params, rate_filter))
+            & _rate.drifting(params, rate_filter))
 
 
 STRETCH_GATE = 3.0
@@ -106,7 +107,7 @@ def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady,
         # A completed stretch measures the drift the ratio in force leaves, independently of the compass.
         offset = measure_rate(offset, *stretch_rate(params, calibration, cal_state, odo["track"]))
         # A large, significant drift of the wheel heading is the tyres': taken into the ratio at once.
-        capture = computed_once(_offset.large_drift(params, offset) & _beyond(offset, _cal.CAPTURE_RATE_Z)
+        capture = computed_once(_rate.large_drift(params, offset) & _beyond(offset, _cal.CAPTURE_RATE_Z)
                                 & (initialized > 0.5))
         # A smaller one the stretches corroborate: the heading follows the rate filter from here (the hold), and
         # later recalibrations restart the hold as after a large drift (the rate filter's since_drift).

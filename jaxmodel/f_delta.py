@@ -17,6 +17,7 @@ from . import field_tilt as _field_tilt
 from . import heading_filter as _hf
 from . import follow as _follow
 from . import offset_filter as _offset
+from . import rate_significance as _rate
 from .angles import safe_div, wrap
 from .packed import computed_once
 from .params import deg
@@ -73,8 +74,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
                              odo["turn_sigma"])
     predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
-    drifting = _offset.drifting(params, offset)
-    drift_significant = _offset.drifting_significantly(params, offset)
+    drifting = _rate.drifting(params, offset)
+    drift_significant = _rate.drifting_significantly(params, offset)
     ln_reference, has_reference = _field_tilt.reference(params, state.field_sum, state.field_count, state.soft_field,
                                                         harmonics_of_raw)
     tilt = _field_tilt.roll_reaching_heading(params, _field_tilt.tilt_gain(params, wheel_heading + state.steady.delta),

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from . import offset_filter as _of
+from . import rate_significance as _rate
 from .angles import wrap
 from .packed import computed_once
 from .params import deg
@@ -108,8 +109,8 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     f = rate_filter.fields()
     z = jnp.zeros_like(f.beta)
     taken = f._replace(beta=z, **{f"p{min(i, 1)}{max(i, 1)}": z for i in range(len(_of.STATES))})
-    w_rate = _of.follow_weight(params, rate_filter)
-    restart = _of.large_drift(params, rate_filter) if hold_on_drift else False
+    w_rate = _rate.follow_weight(params, rate_filter)
+    restart = _rate.large_drift(params, rate_filter) if hold_on_drift else False
     since = jnp.where(restart, 0.0, steady.since_drift + d_t)
     hold = jax.nn.sigmoid(20.0 * (1.0 - since / jnp.maximum(params.filter_follow_hold_m, 1e-9)))
     w = jnp.where(computed_once(initializing), 1.0, hold)
@@ -120,7 +121,7 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     blended = blended._replace(delta=wrap(s_delta + w * wrap(taken.delta - s_delta)), since_drift=since)
     # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
     show_rate = params.filter_follow_show_rate * (1.0 - (1.0 - CALIBRATED_SHOW_FRACTION) * calibrated)
-    w_rate = w_rate * jax.nn.sigmoid(_of.FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
+    w_rate = w_rate * jax.nn.sigmoid(_rate.FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))

@@ -91,10 +91,10 @@ import numpy as np
 from . import fix_alignment as _align
 from .angles import safe_div, wrap
 from .fix_alignment import AlignmentState, init_alignment_state
-from .offset_filter import (UNINITIALIZED_BOUND, drifting_significantly, large_drift, lost, lost_distance,
-                            samples_per_measurement, supported_bound)
+from .offset_filter import UNINITIALIZED_BOUND, lost, lost_distance, samples_per_measurement, supported_bound
 from .packed import computed_once
 from .params import deg
+from .rate_significance import drifting_significantly, large_drift
 
 N_STATES = 8
 MAX_DT_S = 60.0
@@ -355,8 +355,8 @@ compass errors on hills fake (without it, matrix highway/hills/105 in the Kalman
 
 def released_rate_variance(params, rate_filter, ks):
     """The variance (rad^2/m^2) beta^, the wheel course's rate per metre, is released to this sample: the rate
-    filter's beta^2 + its variance while that filter's drift is large (``offset_filter.large_drift``: a tyre
-    mismatch, captured into the ratio), or while it is significant (``offset_filter.drifting_significantly``),
+    filter's beta^2 + its variance while that filter's drift is large (``rate_significance.large_drift``: a tyre
+    mismatch, captured into the ratio), or while it is significant (``rate_significance.drifting_significantly``),
     larger than RELEASE_SHOW_RATES x filter_follow_show_rate, and the course has run RELEASE_DISAGREEMENT_DEG away
     from the compass (``ks.disagreement``, before this sample); else 0 (beta^ keeps its own).
 

@@ -98,11 +98,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
 from .packed import computed_once, packed_state
+from .rate_significance import large_drift
 from .params import deg
 from .field_tilt import ROLL_SIGMA_DEG, reads_field
 from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
@@ -315,9 +315,9 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     DELTA = delta + c + sin(psi_m) g + cos(psi_m) r + white noise (h = [1, 0, 1, 0, sin, cos]); ``tilt`` = (sin(psi_m),
     cos(psi_m)) from ``field_tilt.tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m), a roll by
     r cos(psi_m).
-    ``drifting`` (bool, from ``drifting``): the rate filter explains a long disagreement by the wheels,
+    ``drifting`` (bool, from ``rate_significance.drifting``): the rate filter explains a long disagreement by the wheels,
     so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that rate
-    is also significant (``drift_significant``, bool, from ``drifting_significantly``; default ``drifting``).  A filter
+    is also significant (``drift_significant``, bool, from ``rate_significance.drifting_significantly``; default ``drifting``).  A filter
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     ``dt`` (s, the sample's time step; default: not counted in time): the white noise is counted at most once per
@@ -443,19 +443,6 @@ def measure_state(fs, name, value, variance, gate):
     return measure(fs, [1 if state == name else 0 for state in STATES], value, variance, gate)
 
 
-def drifting(params, rate_filter):
-    """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over
-    filter_reacquire_m (bool): a disagreement with the compass is then the wheels' (a lock-out), not the
-    compass's."""
-    return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
-
-
-def drifting_significantly(params, rate_filter):
-    """``drifting`` with a rate the filter is sure of (``significant``, bool): what lets a rejected compass restart
-    the filter after filter_reacquire_m (``update``'s ``drift_significant``)."""
-    return drifting(params, rate_filter) & significant(params, rate_filter)
-
-
 COMPASS_CORR_S = 0.09
 """The compass's white noise is counted at most once per this many seconds (``update``'s ``dt``): the filter's
 constants were fitted on 10-Hz logs (samples 0.096-0.104 s apart, which this leaves as they were), and a 50-Hz log
@@ -560,35 +547,6 @@ def steady_params(params):
     """Constants of the steady F-DELTA: no rate state, ``filter_steady_turn_sigma`` as turn noise."""
     z = jnp.zeros_like(params.filter_rate_psd)
     return params._replace(filter_rate_sigma0=z, filter_rate_psd=z, filter_turn_sigma=params.filter_steady_turn_sigma)
-
-
-FOLLOW_STEEPNESS = 8.0
-"""Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
-
-
-def follow_weight(params, rate_filter):
-    """How much the steady F-DELTA takes the rate filter's state this sample, in [0, 1].
-
-    A smooth step in the rate's significance z = |beta| / sigma_beta, 0.5 at z =
-    filter_rate_significance and 1e-7 at z = 0 (so gradients exist across the switch; at 10 Hz the
-    pull of an insignificant rate is nil, of a significant one complete within samples).
-    """
-    z = jnp.abs(rate_filter.beta) / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
-    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
-
-
-def significant(params, rate_filter):
-    """Whether the rate filter's rate is beyond filter_rate_significance of its sigmas (follow_weight above 1/2)."""
-    return follow_weight(params, rate_filter) > 0.5
-
-
-def large_drift(params, rate_filter):
-    """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
-    filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
-    grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
-    the window in which recalibrations restart the steady filter's follow hold (``count_since_large_drift``), and,
-    with the calibration off, the hold itself (``follow.follow``)."""
-    return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
 
 
 NEVER_DRIFTED_M = 1e12

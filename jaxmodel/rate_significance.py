@@ -1,0 +1,57 @@
+"""Whether the wheels drift: the rate filter's rate, judged by its size and its significance.
+
+The rate filter of jaxmodel/offset_filter.py carries F-DELTA's rate per metre (beta): a tyre mismatch or a wrong
+track turns the wheel heading steadily, and the compass sees it as a steady change of F-DELTA.  These tests read that
+rate: large enough to lock the compass out over filter_reacquire_m (``drifting``), sure enough to act on
+(``significant``, ``follow_weight``: how much the steady filter takes the rate filter's state), and large like a tyre
+mismatch rather than a grade's dip error (``large_drift``: the calibration captures it, the follow hold starts).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .params import deg
+
+
+def drifting(params, rate_filter):
+    """Whether the rate filter's rate turns F-DELTA by more than filter_reacquire_drift_deg over
+    filter_reacquire_m (bool): a disagreement with the compass is then the wheels' (a lock-out), not the
+    compass's."""
+    return jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(params.filter_reacquire_drift_deg)
+
+
+def drifting_significantly(params, rate_filter):
+    """``drifting`` with a rate the filter is sure of (``significant``, bool): what lets a rejected compass restart
+    the filter after filter_reacquire_m (``offset_filter.update``'s ``drift_significant``)."""
+    return drifting(params, rate_filter) & significant(params, rate_filter)
+
+
+FOLLOW_STEEPNESS = 8.0
+"""Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
+
+
+def follow_weight(params, rate_filter):
+    """How much the steady F-DELTA takes the rate filter's state this sample, in [0, 1].
+
+    A smooth step in the rate's significance z = |beta| / sigma_beta, 0.5 at z =
+    filter_rate_significance and 1e-7 at z = 0 (so gradients exist across the switch; at 10 Hz the
+    pull of an insignificant rate is nil, of a significant one complete within samples).
+    """
+    z = jnp.abs(rate_filter.beta) / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
+    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
+
+
+def significant(params, rate_filter):
+    """Whether the rate filter's rate is beyond filter_rate_significance of its sigmas (follow_weight above 1/2)."""
+    return follow_weight(params, rate_filter) > 0.5
+
+
+def large_drift(params, rate_filter):
+    """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
+    filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
+    grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
+    the window in which recalibrations restart the steady filter's follow hold (``offset_filter.count_since_large_drift``), and,
+    with the calibration off, the hold itself (``follow.follow``)."""
+    return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
