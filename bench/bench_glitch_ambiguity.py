@@ -34,17 +34,13 @@ SCENARIOS = ("urban", "mixed", "highway")  # parking never drives above the 3 m/
 LASTING_AFTER = 60  # samples after a burst at which its lasting step is read (6 s at 10 Hz)
 
 
-def _unwrapped(counter, modulus):
-    c = np.asarray(counter, np.int64)
-    half = modulus // 2
-    return np.concatenate([[c[0]], c[0] + np.cumsum((np.diff(c) + half) % modulus - half)])
-
-
 def _bursts(glitched, restored, modulus):
     """Samples at which a burst starts (a lasting change of either counter against the restored drive)."""
+    from identification.scenarios import unwrap_counter
+
     starts = []
     for column in ("left_pulses", "right_pulses"):
-        extra = _unwrapped(glitched.columns[column], modulus) - _unwrapped(restored.columns[column], modulus)
+        extra = unwrap_counter(glitched.columns[column], modulus) - unwrap_counter(restored.columns[column], modulus)
         changed = np.flatnonzero(np.diff(extra)) + 1
         # A spike returns on the next sample (the return is no burst either); a burst stays.
         starts += [int(k) for k in changed if 2 <= k < extra.size - 1 and extra[k + 1] == extra[k]
@@ -61,24 +57,25 @@ def burst_misses(seeds):
               if d.glitch_time_s is not None]
     restored = [sc.without_glitches(d) for d in drives]
     params = ev.stack_params([d.params for d in drives])
-    _, glitched_inputs, mask, truth, time = ev.stacked_inputs(drives)
+    _, glitched_inputs, mask, _, _ = ev.stacked_inputs(drives)
     _, restored_inputs, _, _, _ = ev.stacked_inputs(restored)
     config = ev.MODE_CONFIGS["odometer"]
     h1 = np.asarray(ev.run_config(params, glitched_inputs, config).heading)
     h0 = np.asarray(ev.run_config(params, restored_inputs, config).heading)
-    wrapped = lambda a: np.angle(np.exp(1j * a))  # noqa: E731
-    steps, bar = [], []
+    steps = []
     for b, (d, r) in enumerate(zip(drives, restored)):
         n = int(mask[b].sum())
         pulse = d.params["dpp_left"] / (d.params["T_F"] if d.params.get("sensor_axle", "front") == "front"
                                         else d.params["T_R"])
-        diff = wrapped(h1[b] - h0[b])
+        diff = np.angle(np.exp(1j * (h1[b] - h0[b])))
         for k in _bursts(d, r, int(d.params.get("counter_modulus", 65536))):
             if k + LASTING_AFTER < n:
                 steps.append((d.scenario, (diff[k + LASTING_AFTER] - diff[k - 1]) / pulse))
-        keep = (mask[b] > 0.5) & (time[b] - time[b, 0] >= ev.SKIP_S) & (time[b] >= d.glitch_time_s)
-        rmse = [np.degrees(np.sqrt(np.mean(wrapped(h[b] - truth[b])[keep] ** 2))) for h in (h1, h0)]
-        bar.append((d.name, rmse[0] - rmse[1]))
+    # The glitch bar's figure as bench/bench_scenarios.py has it (``scenario_eval.evaluate``'s glitch_rmse).
+    glitched_rows = ev.evaluate(drives, modes=("odometer",))
+    restored_rows = ev.evaluate(restored, modes=("odometer",))
+    bar = [(g["name"], g["glitch_rmse"]["odometer"] - r["glitch_rmse"]["odometer"])
+           for g, r in zip(glitched_rows, restored_rows)]
     return steps, bar
 
 
@@ -86,6 +83,7 @@ def step_fit_floor(seeds, samples_per_drive, rng):
     """Per scenario and estimator, the fraction of clean moving samples at which a least-squares step fit of the
     cumulative dD (pulses) finds half a pulse or more (there is no step)."""
     from identification import scenarios as sc
+    from identification.scenarios import unwrap_counter
     from identification.simulate import simulate
 
     windows = {"line, 10 samples each side": (10, 1), "cubic, 20 each side": (20, 3)}
@@ -93,7 +91,7 @@ def step_fit_floor(seeds, samples_per_drive, rng):
     for scenario in SCENARIOS:
         for seed in seeds:
             columns, truth = simulate(scenario, 900.0, seed, params=dict(sc.vehicle(seed)), anomalies=False)
-            d = (_unwrapped(columns["left_pulses"], 65536) - _unwrapped(columns["right_pulses"], 65536)).astype(float)
+            d = (unwrap_counter(columns["left_pulses"]) - unwrap_counter(columns["right_pulses"])).astype(float)
             moving = np.flatnonzero(np.asarray(truth["speed_mps"]) > 3.0)
             moving = moving[(moving > 25) & (moving < d.size - 25)]
             for k in rng.choice(moving, min(samples_per_drive, moving.size), replace=False):
@@ -121,10 +119,12 @@ def main():
     from identification.scenarios import EVALUATION_SEEDS
 
     if set(seeds) & set(EVALUATION_SEEDS):
-        ap.error(f"seeds {sorted(set(seeds) & set(EVALUATION_SEEDS))} are evaluation seeds: this bench does not read them")
+        evaluation = sorted(set(seeds) & set(EVALUATION_SEEDS))
+        ap.error(f"seeds {evaluation} are evaluation seeds: this bench does not read them")
     steps, bar = burst_misses(seeds)
     print(f"glitches drives of seeds {args.seeds}: {len(bar)} drives, {len(steps)} bursts (odometer mode)")
-    print("\n| scenario | bursts | lasting step of half a pulse or more | mean abs lasting step (pulses) |\n|---|---|---|---|")
+    print("\n| scenario | bursts | lasting step of half a pulse or more | mean abs lasting step (pulses) |")
+    print("|---|---|---|---|")
     for scenario in SCENARIOS:
         s = np.array([abs(v) for name, v in steps if name == scenario])
         if s.size:

@@ -52,6 +52,6 @@ def large_drift(params, rate_filter):
     """Whether the rate filter's rate is significant (follow_weight above 1/2) and larger than
     filter_follow_hold_rate (bool): the wheels drift as a tyre mismatch makes them, beyond what dip errors on
     grades look like.  It starts a capture of the drift into the left/right ratio (``calibration.capture_rate``),
-    the window in which recalibrations restart the steady filter's follow hold (``offset_filter.count_since_large_drift``), and,
-    with the calibration off, the hold itself (``follow.follow``)."""
+    the window in which recalibrations restart the steady filter's follow hold
+    (``offset_filter.count_since_large_drift``), and, with the calibration off, the hold itself (``follow.follow``)."""
     return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
