@@ -66,8 +66,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
-    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
     # The start's anchor is young for its first km of absolute headings: one straight road on a grade can be it.
+    distance_filtered = state.distance_filtered + jnp.where(absolute_ok, d_t, 0.0)
     young = _offset.young(params, distance_filtered)
     calibrated = _cal.corrected(params, state.calibration)
     offset = _offset.predict(_follow.calibrated_rate_params(params, calibrated), state.offset, odo["AD"], d_t, alpha,
@@ -92,10 +92,14 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
-    steady, _, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,
-                                                    absolute_ok & ~initializing, drifting, tilt, d_lost,
-                                                    drift_significant, dt=odo["dt"], young=young,
-                                                    with_lost_restart=True)
+    steady, steady_weight, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,
+                                                                absolute_ok & ~initializing, drifting, tilt, d_lost,
+                                                                drift_significant, dt=odo["dt"], young=young,
+                                                                with_lost_restart=True)
+    # A turn with a compass the steady filter accepts checked the anchor at another heading: ANCHOR_TURN_M metres a
+    # radian (from the next sample on).  A rejected one did not (a start on a grade, contradicted after its first turn).
+    distance_filtered = distance_filtered + jnp.where(absolute_ok & (steady_weight > 0.5),
+                                                      _offset.ANCHOR_TURN_M * jnp.abs(alpha), 0.0)
     steady = _field_tilt.update(steady_params, steady, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference,
                                 has_reference)
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,

@@ -137,7 +137,7 @@ class State(NamedTuple):
     factor: jnp.ndarray           # F
     delta_history: jnp.ndarray    # last three DELTA at F updates, newest first, rad
     distance_since_F: jnp.ndarray  # m since the last update of F
-    distance_filtered: jnp.ndarray  # m driven with the filter running (start-up floor of the gain)
+    distance_filtered: jnp.ndarray  # m driven with the filter running (start-up floor of the gain; robust: + turns)
     field_sum: jnp.ndarray        # (FIELD_BINS,) distance-weighted sums of |B| per heading bin (learned B_E)
     field_count: jnp.ndarray      # (FIELD_BINS,) their weights, m
     a: jnp.ndarray                # current velocity coefficient, s^2/m^2
