@@ -279,9 +279,9 @@ started heading west on a 9 % grade, 12.6 deg off; after the first turn the comp
 rejected, for 800 m).  A fraction of filter_reacquire_m, so that switching re-acquisition off switches this off."""
 ANCHOR_TURN_M = 50.0
 """A radian turned with an absolute heading that the steady filter accepted counts as this many metres of the anchor's
-age (``young``): a turn checks the compass against the wheels at a new heading, as a straight kilometre does not.  A parking drive covers 1-1.5 km in
-15 minutes, so it was young all drive, and a car park's field, 40-80 deg off and wandering by 15 deg, restarted it as
-lost (parking/long_disturbance, diagnosis seeds 331-400: 352 / 365 / 391 / 371 43.2 / 24.1 / 21.1 / 4.2 deg -> 1.3 /
+age (``young``): a turn checks the compass against the wheels at a new heading, as a straight kilometre does not.  A
+parking drive covers 1-1.5 km in 15 minutes, so it was young all drive, and a car park's field, 40-80 deg off and
+wandering by 15 deg, restarted it as lost (parking/long_disturbance, diagnosis seeds 331-400: 352 / 365 / 391 / 371 43.2 / 24.1 / 21.1 / 4.2 deg -> 1.3 /
 1.1 / 1.1 / 0.8 deg; geometric mean of the 70 drives 1.354 -> 1.155 deg; 20 m: 1.214, 100 m as 50).  No drive of the
 matrix's seeds 101-106, of garage_start 301-320, of the judge-like or the independent set moved (docs/tuning.md,
 stop 62)."""
@@ -401,13 +401,13 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
     # away while a large tyre mismatch was uncalibrated, a heading lost in a garage).
     restart = _restarted(params, wrap(delta_meas), level, wander, f.since_drift)
+    lost_now = is_lost | standing_lost
     # A lost restart says the heading was wrong, not the wheels: the rate (the tyres', learned over the drive) and its
     # variance are kept.  Restarted at its prior, the rate filter learned 8 mrad/m from a car park's field settling
     # after the restart, and the calibration captured it as a 1.2 % mismatch (parking/long_disturbance/314: 7.31 ->
     # 3.31 deg; no other drive of the matrix's seeds 101-106, of the judge-like or independent sets moved).  The other
     # restarts (a lock-out, a young start, a far one) reset it too: kept there, the matrix got worse (0.7763 -> 0.7788
     # deg on seeds 101-103; docs/tuning.md, stop 62).
-    lost_now = is_lost | standing_lost
     restart = restart._replace(beta=jnp.where(lost_now, f.beta, restart.beta),
                                p11=jnp.where(lost_now, f.p11, restart.p11))
     # A lost filter counts its metres from when it became lost, not from when the compass was first rejected: a long
@@ -416,7 +416,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # The early restart needs a rate the filter is sure of: a compass whose error depends on the heading (a shifted
     # hard iron) teaches the rate filter a rate of 1-1.5 sigma, and restarting on it put urban/hard_iron_shift/106
     # 16 deg off for the last 4 minutes.
-    reacquire = jnp.where(is_lost | standing_lost, lost_m > lost_after, rejected_m > jnp.where(
+    reacquire = jnp.where(lost_now, lost_m > lost_after, rejected_m > jnp.where(
         drift_significant, params.filter_reacquire_m, params.filter_reacquire_step_m))
     # A young start (``young``) that a steady compass contradicts for long was anchored by a compass with an error of
     # its own (a grade); a hardened filter would take kilometres to let it back in.
@@ -434,7 +434,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
                                           for r_, n_, o_ in zip(restart, new, f)]))
     weight = jnp.where(ok, weight, 0.0)
     if with_lost_restart:
-        return out, weight, reacquire & ok & (is_lost | standing_lost)
+        return out, weight, reacquire & ok & lost_now
     return out, weight
 
 

@@ -19,7 +19,8 @@ from matrix_drives import default_rmse_after_first_minute, run_drive
 
 def test_a_turn_ages_the_start_anchor_as_anchor_turn_m_metres_a_radian():
     """``young`` counts the metres of absolute headings and ANCHOR_TURN_M for each radian the wheels turned with a
-    compass the steady filter accepted (a clean drive: nearly all of them): the first five minutes of a parking drive (~350 m) age it past filter_reacquire_m."""
+    compass the steady filter accepted (a clean drive: nearly all of them): the first five minutes of a parking drive
+    (~350 m) age it past filter_reacquire_m."""
     drive = sc.make_drive("parking", "baseline", 101, duration_s=300.0)
     params = jm.make_params(dict(drive.params))
     inputs = jax.tree_util.tree_map(jnp.asarray, drive_from_columns(drive.columns, source="car park").inputs)
