@@ -53,9 +53,8 @@ def tilt_gain(params, heading):
 FIELD_HARD_GATE = 2.0
 """Innovations of ln(|B| / B_E) beyond this many sigmas (of the innovation: g's and r's variance and the
 measurement's) are not read at all: an anomaly the heading filter let through walked r to 12 deg under the soft gate
-alone (judge-like urban_hilly/95, stop 59).  At 3 sigmas anomalies still moved g and r; 2 was better on every set
-measured (stop 63), 1.5 better still there but it cannot read a start on a 9 % grade (test_come_back's urban_hilly/20:
-1.34 -> 2.09 deg)
+alone (judge-like urban_hilly/95, stop 59).  2 sigmas was better than 3 on every set measured (stop 63); 1.5
+better still there, but it does not read a start on a 9 % grade (test_come_back's urban_hilly/20: 1.34 -> 2.09 deg)
 (docs/tuning.md, "Stop 63")."""
 
 CLEAN_WEIGHT = 0.5
@@ -97,9 +96,9 @@ def roll_reaching_heading(params, tilt, has_reference):
 def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
-    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard gate).  ``b_m``: |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from
-    ``tilt_gain``; ``ok`` (bool): a clean compass sample while moving; ``ln_reference``, ``has_reference``:
-    ``reference``.  Unchanged where not ``ok``, without a reference or where |B| is not read (``reads_field``)."""
+    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard gate).  ``b_m``:
+    |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a clean compass sample
+    while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``, without a reference or where |B| is not read (``reads_field``)."""
     from . import offset_filter as _of  # it reads ROLL_SIGMA_DEG and reads_field from here
 
     ok = ok & reads_field(params) & has_reference & (d_t > 0.0) & (b_m > 0.0)
