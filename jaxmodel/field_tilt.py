@@ -98,7 +98,8 @@ def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
     metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard gate).  ``b_m``:
     |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a clean compass sample
-    while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``, without a reference or where |B| is not read (``reads_field``)."""
+    while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``, without a reference
+    or where |B| is not read (``reads_field``)."""
     from . import offset_filter as _of  # it reads ROLL_SIGMA_DEG and reads_field from here
 
     ok = ok & reads_field(params) & has_reference & (d_t > 0.0) & (b_m > 0.0)
