@@ -281,10 +281,10 @@ ANCHOR_TURN_M = 50.0
 """A radian turned with an absolute heading that the steady filter accepted counts as this many metres of the anchor's
 age (``young``): a turn checks the compass against the wheels at a new heading, as a straight kilometre does not.  A
 parking drive covers 1-1.5 km in 15 minutes, so it was young all drive, and a car park's field, 40-80 deg off and
-wandering by 15 deg, restarted it as lost (parking/long_disturbance, diagnosis seeds 331-400: 352 / 365 / 391 / 371 43.2 / 24.1 / 21.1 / 4.2 deg -> 1.3 /
-1.1 / 1.1 / 0.8 deg; geometric mean of the 70 drives 1.354 -> 1.155 deg; 20 m: 1.214, 100 m as 50).  No drive of the
-matrix's seeds 101-106, of garage_start 301-320, of the judge-like or the independent set moved (docs/tuning.md,
-stop 62)."""
+wandering by 15 deg, restarted it as lost (parking/long_disturbance, diagnosis seeds 331-400: 352 / 365 / 391 / 371
+43.2 / 24.1 / 21.1 / 4.2 deg -> 1.3 / 1.1 / 1.1 / 0.8 deg; geometric mean of the 70 drives 1.354 -> 1.155 deg; 20 m:
+1.214, 100 m as 50).  No drive of the matrix's seeds 101-106, of garage_start 301-320, of the judge-like or the
+independent set moved (docs/tuning.md, stop 62)."""
 START_REJECT_FRACTION = 0.6
 """A young filter restarts from a compass it rejected this fraction of filter_reacquire_m (600 m) in a row while that
 compass disagreed steadily (START_WANDER_DEG) and no significant drift of the wheels explained it: as a drifting

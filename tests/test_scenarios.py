@@ -411,8 +411,8 @@ def test_a_garage_is_left_behind_within_metres():
 @pytest.mark.parametrize("seed", [107, 110])
 def test_a_garage_left_at_walking_pace_is_left_behind_within_seconds(seed):
     """A lost filter counts at least LOST_MIN_SPEED (4 m/s; 2 until stop 62) of its restart's metres per second while
-    the car moves (offset_filter.lost_distance).  Stop 28 measured this on seeds 103 and 108 (10 m at 0.6-0.8 m/s took 12-15 s
-    with the heading 140 and 60 deg off, 5.0 s with it); since stop 36 those two restart while still standing
+    the car moves (offset_filter.lost_distance).  Stop 28 measured this on seeds 103 and 108 (10 m at 0.6-0.8 m/s took
+    12-15 s with the heading 140 and 60 deg off, 5.0 s with it); since stop 36 those two restart while still standing
     (test_a_garage_left_while_standing_restarts_the_heading_before_the_car_moves), so the test drives 107 and 110,
     which move off 0.1 and 2.5 s after the field turned back, 61 and 95 deg off.  Measured from the first moving
     sample after the garage, the heading is within 3 deg from 6 s to a minute after (stop 36: at most 1.25 and

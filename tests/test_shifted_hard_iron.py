@@ -20,6 +20,18 @@ def _final_state_and_outputs(drive):
     return jm.run_from(params, jm.init_state(params), inputs, jm.Config())
 
 
+def _default_rmse_with_constant(monkeypatch, drive, module, name, value, overrides=None):
+    """``default_rmse_after_first_minute`` with the module constant ``module.name`` set to ``value`` for this run only
+    (the constant is read when the step is traced, so the compiled programs are dropped before and after)."""
+    monkeypatch.setattr(module, name, value)
+    jax.clear_caches()
+    try:
+        return default_rmse_after_first_minute(drive, overrides)
+    finally:
+        monkeypatch.undo()
+        jax.clear_caches()
+
+
 @pytest.mark.slow
 def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
     """A hard iron that shifts mid-drive puts the compass 5-9 deg off for the last quarter of a highway drive while
@@ -46,13 +58,9 @@ def test_a_rejection_is_released_not_reset_by_one_accepted_sample(monkeypatch):
 
     drive = sc.make_drive("highway", "hard_iron_shift", 103)
     default = default_rmse_after_first_minute(drive)
-    monkeypatch.setattr(offset_filter, "REJECTION_RELEASE", 1e12)  # one accepted metre resets the count
-    jax.clear_caches()  # the constant is read when the step is traced
-    try:
-        before = default_rmse_after_first_minute(drive, {"filter_reacquire_step_m": 5000.0})
-    finally:
-        monkeypatch.undo()
-        jax.clear_caches()
+    # One accepted metre resets the count.
+    before = _default_rmse_with_constant(monkeypatch, drive, offset_filter, "REJECTION_RELEASE", 1e12,
+                                         {"filter_reacquire_step_m": 5000.0})
     assert before > 5.0, (default, before)
     assert default < 0.4 * before, (default, before)
 
@@ -127,12 +135,6 @@ def test_a_shifted_hard_iron_is_taken_out_with_the_field_hard_gated_at_two_sigma
 
     drive = sc.make_drive("highway", "hard_iron_shift", 106)
     default = default_rmse_after_first_minute(drive)
-    monkeypatch.setattr(field_tilt, "FIELD_HARD_GATE", 3.0)
-    jax.clear_caches()  # the constant is read when the step is traced
-    try:
-        before = default_rmse_after_first_minute(drive)
-    finally:
-        monkeypatch.undo()
-        jax.clear_caches()
+    before = _default_rmse_with_constant(monkeypatch, drive, field_tilt, "FIELD_HARD_GATE", 3.0)
     assert before > 1.5, (default, before)
     assert default < 1.1, (default, before)
