@@ -18,8 +18,8 @@ with residual sum |f - R p - t|^2 = S_ff + S_pp - 2 sqrt(S^2 + C^2) (S, C the tw
 sigma_theta^2 = (max(sigma_white, residual RMS)^2 + sigma_coloured^2 n / n_independent) / S_pp, S_pp the track's
 spread (m^2; ``rotation``): turns only help.  The heading starts at H_W + theta once sigma_theta is within
 ALIGN_SIGMA_DEG; the Kalman course starts with that variance and the position computer at that fix (kalman.align_after,
-which also re-aligns a course that lost its fixes).  A residual RMS beyond ALIGN_RESTART_FACTOR fix sigmas (a fix outlier, a wheel course drifting with a tyre
-mismatch) starts the sums again from the current fix.  Only the track's shape enters, so the distance scale need
+which also re-aligns a course that lost its fixes).  A residual RMS beyond ALIGN_RESTART_FACTOR fix sigmas (a fix
+outlier, a wheel course drifting with a tyre mismatch) starts the sums again from the current fix.  Only the track's shape enters, so the distance scale need
 not be known well (a 1 % scale error adds 1 % of the spread to the residual, not to theta).
 """
 
@@ -133,7 +133,8 @@ def update(params, al, *, dt, distance, course, fix_east, fix_north, fix_valid, 
     sigma_fix = fix_sigma(params)
     theta, sigma, rms = rotation(grown, params.kf_fix_sigma_m, params.kf_fix_gm_sigma_m, params.kf_fix_gm_tau_s)
     inconsistent = (grown.n >= ALIGN_MIN_FIXES) & (rms > ALIGN_RESTART_FACTOR * sigma_fix)
-    aligned = fix_ok & (a.started > 0.5) & (grown.n >= ALIGN_MIN_FIXES) & (sigma <= deg(ALIGN_SIGMA_DEG)) & ~inconsistent
+    settled = (grown.n >= ALIGN_MIN_FIXES) & (sigma <= deg(ALIGN_SIGMA_DEG))
+    aligned = fix_ok & (a.started > 0.5) & settled & ~inconsistent
     z = jnp.zeros_like(pe)
     one = jnp.ones_like(pe)
     # The first fix, or one after an inconsistent stretch: the sums start again with it (p = 0, f - f0 = 0).

@@ -115,7 +115,7 @@ class State(NamedTuple):
     """Filter state (all float64 scalars except ``delta_history``, shape (3,))."""
 
     started: jnp.ndarray          # 1.0 once the first sample set the counter references
-    initialized: jnp.ndarray      # 1.0 once a valid compass sample (Kalman mode: or the fixes) started the wheel heading
+    initialized: jnp.ndarray      # 1.0 once a valid compass sample (Kalman mode: or a fix) started the wheel heading
     last_time: jnp.ndarray        # s
     last_left: jnp.ndarray        # counts
     last_right: jnp.ndarray       # counts

@@ -387,8 +387,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # while the car stood and stays steadily that far off is judged by time (``lost_distance``): the wheels saw no
     # turn, so the field changed around the car (the garage it started in, left without moving on).
     standing_lost = (d_t <= 0.0) & steadily & (jnp.abs(level) > deg(params.filter_reacquire_large_deg))
-    unsteady_after = jnp.where(young, params.filter_reacquire_lost_m,
-                               jnp.maximum(params.filter_reacquire_lost_m, MATURE_LOST_FRACTION * params.filter_reacquire_m))
+    mature_lost_m = jnp.maximum(params.filter_reacquire_lost_m, MATURE_LOST_FRACTION * params.filter_reacquire_m)
+    unsteady_after = jnp.where(young, params.filter_reacquire_lost_m, mature_lost_m)
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, unsteady_after)
     lost_m = jnp.where((weight < 0.5) | standing_lost,
                        f.lost_m + jnp.where(beyond, jnp.minimum(d_lost, lost_after / LOST_LOOKS), 0.0), 0.0)

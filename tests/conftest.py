@@ -1,5 +1,6 @@
 """Test configuration: float64 and strict rank promotion, as in diffrax."""
 
+import contextlib
 import gc
 import os
 import tempfile
@@ -58,6 +59,29 @@ def _free_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+@pytest.fixture
+def traced_constants():
+    """A context manager that sets module constants for what runs inside it only: ``with traced_constants((module,
+    "NAME", value), ...):``.  The estimator reads its module constants when a step is traced, so the compiled programs
+    are dropped on entry and on exit, and the constants are restored however the block ends (a failing assertion
+    inside it must not leave the rest of the module running programs traced with them)."""
+
+    @contextlib.contextmanager
+    def patched(*settings):
+        saved = [(module, name, getattr(module, name)) for module, name, _ in settings]
+        try:
+            for module, name, value in settings:
+                setattr(module, name, value)
+            jax.clear_caches()
+            yield
+        finally:
+            for module, name, value in reversed(saved):
+                setattr(module, name, value)
+            jax.clear_caches()
+
+    return patched
 
 
 HEAVY_FILES_FIRST = ("test_fleet.py", "test_scenarios.py", "test_kalman.py", "test_model.py", "test_fmu.py",

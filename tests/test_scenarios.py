@@ -464,7 +464,7 @@ def _stuck_rmse_after_the_fault(scenario, axle):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario, axle", [("highway", "front"), ("parking", "front"), ("urban", "rear")])
-def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, axle, monkeypatch):
+def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, axle, traced_constants):
     """plausibility.impossible on a whole drive.  Without the checks (the curvature factor and the lateral
     acceleration made unreachable) the guard believed the stuck wheel after GUARD_MAX_SUBSTITUTED samples and the
     wheel heading spun by 2/T rad per metre (measured: highway 32.5 deg, parking 25.6 deg RMSE from the fault on;
@@ -472,11 +472,8 @@ def test_a_left_sensor_stuck_for_5_s_does_not_spin_the_heading(scenario, axle, m
     and 0.36 (the substituted turn's variance hands the heading to the compass for the fault).  Rear-axle sensors are
     caught by the lateral acceleration alone, from a wheel speed of ~6 m/s: at parking speeds they are not."""
     with_check = _stuck_rmse_after_the_fault(scenario, axle)
-    monkeypatch.setattr(plausibility, "IMPOSSIBLE_CURVATURE_FACTOR", 1e9)
-    monkeypatch.setattr(plausibility, "MAX_LATERAL_ACCEL", 1e9)
-    jax.clear_caches()
-    without = _stuck_rmse_after_the_fault(scenario, axle)
-    jax.clear_caches()
+    with traced_constants((plausibility, "IMPOSSIBLE_CURVATURE_FACTOR", 1e9), (plausibility, "MAX_LATERAL_ACCEL", 1e9)):
+        without = _stuck_rmse_after_the_fault(scenario, axle)
     assert with_check["clean"] == pytest.approx(without["clean"], abs=1e-9)  # nothing changes on the clean drive
     assert with_check["stuck"] < with_check["clean"] + 0.6 and without["stuck"] > 10.0, (with_check, without)
 

@@ -20,18 +20,6 @@ def _final_state_and_outputs(drive):
     return jm.run_from(params, jm.init_state(params), inputs, jm.Config())
 
 
-def _default_rmse_with_constant(monkeypatch, drive, module, name, value, overrides=None):
-    """``default_rmse_after_first_minute`` with the module constant ``module.name`` set to ``value`` for this run only
-    (the constant is read when the step is traced, so the compiled programs are dropped before and after)."""
-    monkeypatch.setattr(module, name, value)
-    jax.clear_caches()
-    try:
-        return default_rmse_after_first_minute(drive, overrides)
-    finally:
-        monkeypatch.undo()
-        jax.clear_caches()
-
-
 @pytest.mark.slow
 def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
     """A hard iron that shifts mid-drive puts the compass 5-9 deg off for the last quarter of a highway drive while
@@ -47,7 +35,7 @@ def test_a_shifted_hard_iron_does_not_creep_in_or_restart_the_filter():
 
 
 @pytest.mark.slow
-def test_a_rejection_is_released_not_reset_by_one_accepted_sample(monkeypatch):
+def test_a_rejection_is_released_not_reset_by_one_accepted_sample(traced_constants):
     """A hard iron shifted on a highway: no turns to learn it from (compass_shift), the compass 9-15 deg off.  While
     the filter rejected it, its variance grew until samples 8 deg off passed the gate for a second; each such sample
     reset the rejection count and with it the hardening, and the compass crept in (on mixed/hard_iron_shift/102 the
@@ -59,8 +47,8 @@ def test_a_rejection_is_released_not_reset_by_one_accepted_sample(monkeypatch):
     drive = sc.make_drive("highway", "hard_iron_shift", 103)
     default = default_rmse_after_first_minute(drive)
     # One accepted metre resets the count.
-    before = _default_rmse_with_constant(monkeypatch, drive, offset_filter, "REJECTION_RELEASE", 1e12,
-                                         {"filter_reacquire_step_m": 5000.0})
+    with traced_constants((offset_filter, "REJECTION_RELEASE", 1e12)):
+        before = default_rmse_after_first_minute(drive, {"filter_reacquire_step_m": 5000.0})
     assert before > 5.0, (default, before)
     assert default < 0.4 * before, (default, before)
 
@@ -126,7 +114,7 @@ def test_a_captured_tyre_mismatch_is_not_learned_as_a_shifted_hard_iron():
 
 
 @pytest.mark.slow
-def test_a_shifted_hard_iron_is_taken_out_with_the_field_hard_gated_at_two_sigmas(monkeypatch):
+def test_a_shifted_hard_iron_is_taken_out_with_the_field_hard_gated_at_two_sigmas(traced_constants):
     """A hard-iron shift's error is a vector fixed in the car's axes, as a grade's and a roll's are, so the tilt and
     roll states g and r can take it out of the heading (jaxmodel/field_tilt.py).  With |B| hard-gated at 2 sigmas
     (field_tilt.FIELD_HARD_GATE, stop 63) fewer readings are taken, r keeps more variance and takes 4-7 deg of the
@@ -135,6 +123,7 @@ def test_a_shifted_hard_iron_is_taken_out_with_the_field_hard_gated_at_two_sigma
 
     drive = sc.make_drive("highway", "hard_iron_shift", 106)
     default = default_rmse_after_first_minute(drive)
-    before = _default_rmse_with_constant(monkeypatch, drive, field_tilt, "FIELD_HARD_GATE", 3.0)
+    with traced_constants((field_tilt, "FIELD_HARD_GATE", 3.0)):
+        before = default_rmse_after_first_minute(drive)
     assert before > 1.5, (default, before)
     assert default < 1.1, (default, before)
