@@ -29,13 +29,17 @@ weak_field          the compass reads half the field, with the sensor's own 0.25
 counters_held_5     both wheel counters updated every 5th sample and repeated in between (counters sent at 2 Hz, logged
                     at 10 Hz); stop 44
 counters_held_10    the same, every 10th sample (1 Hz)
+pulse_chatter       the left counter over-counts by 1 pulse per sample for 2 s at half the drive (a chafed cable:
+                    20 pulses, each sample within the guard's tolerance; a step of the wheel heading); stop 64
+burst_over_5        25 pulses over 5 samples (a burst logged across samples, 5 per sample); stop 64
 ==================  ===================================================================================
 
 The four from time_jitter on were added at stop 31, after the default's constants were frozen, as judges only.
 compass_noise, weak_field and coarse_pulses were added at stop 37; coarse_pulses (seeds 101/104) chose the form of
 odometer.INTERVAL_MIN_PULSES, so it judges on other seeds only (107/108: docs/benchmarks.md).  The two counters_held
 rows were added at stop 44 and chose the form of ``odometer.COUNTS_HOLD_MAX_S`` (seeds 107/108): they judge on other
-seeds only.
+seeds only.  pulse_chatter and burst_over_5 (stop 64) chose the form of jaxmodel/wheel_step.py on seeds 101/104: they
+judge on other seeds only.
 
 ``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).
 
@@ -163,6 +167,17 @@ def _counter_reset(drive, at=0.5):
         drive.columns[key] = counter % 65536
 
 
+def _pulse_chatter(drive, per_sample=1, duration_s=2.0, at=0.5):
+    """The left counter over-counts by ``per_sample`` pulses on every sample for ``duration_s`` from ``at`` of the
+    drive (a chafed sensor cable): below the plausibility guard's per-sample tolerance, a step of the wheel heading."""
+    t = np.asarray(drive.columns["time_s"], float)
+    i0 = int(np.searchsorted(t, t[0] + at * (t[-1] - t[0])))
+    i1 = int(np.searchsorted(t, t[i0] + duration_s))
+    extra = np.zeros(t.size, np.int64)
+    extra[i0:i1] = per_sample
+    drive.columns["left_pulses"] = (sc.unwrap_counter(drive.columns["left_pulses"]) + np.cumsum(extra)) % 65536
+
+
 def _stuck_wheel(drive, at=0.4, duration_s=5.0):
     t = np.asarray(drive.columns["time_s"], float)
     start = t[0] + at * (t[-1] - t[0])
@@ -208,7 +223,9 @@ DISTURBANCES = {"none": lambda drive: None, "compass_lag": _compass_lag, "compas
                 "stuck_wheel_long": lambda drive: _stuck_wheel(drive, at=0.6, duration_s=10.0),
                 "coarse_pulses": _coarse_pulses, "compass_noise": _compass_noise, "weak_field": _weak_field,
                 "counters_held_5": lambda drive: _counters_held(drive, 5),
-                "counters_held_10": lambda drive: _counters_held(drive, 10)}
+                "counters_held_10": lambda drive: _counters_held(drive, 10),
+                "pulse_chatter": _pulse_chatter,
+                "burst_over_5": lambda drive: _pulse_chatter(drive, per_sample=5, duration_s=0.45)}
 
 
 def main():

@@ -18,6 +18,7 @@ from . import heading_filter as _hf
 from . import follow as _follow
 from . import offset_filter as _offset
 from . import rate_significance as _rate
+from . import wheel_step as _step
 from .angles import safe_div, wrap
 from .packed import computed_once
 from .params import deg
@@ -27,6 +28,12 @@ def learns_shift(config):
     """Config.compass_shift applies: the robust complementary mode without Config.hard_iron (the other modes are
     the matrix's single-sensor references and the Kalman filter, which read the compass as it is)."""
     return config.robust and config.compass_shift and not config.hard_iron and config.mode == "complementary"
+
+
+def finds_wheel_steps(config):
+    """Whether a step of the wheel heading is found from the compass's disagreement (jaxmodel/wheel_step.py): the
+    robust complementary mode (the others are the matrix's single-sensor references and the Kalman filter)."""
+    return config.robust and config.mode == "complementary"
 
 
 def captures_drift(config):
@@ -123,6 +130,14 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
         params, field_sum, field_count, h_c_raw, b_m, b_e, d_t,
         compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
     complementary = wrap(wheel_heading + f_delta)
+    wheel_step, step, step_suspected = state.wheel_step, 0.0, False
+    if finds_wheel_steps(config):
+        # A compass that disagrees by one angle at every heading says the wheels stepped (jaxmodel/wheel_step.py).
+        wheel_step, step, step_suspected = _step.update(
+            wheel_step, wrap(compass_delta - f_delta), complementary, b_m, b_e, d_t,
+            compass_ok & ~map_used & ~initializing & (initialized > 0.5) & ~drifting
+            & (jnp.abs(odo["turn_rate"]) < _step.STEP_MAX_TURN_RATE) & (sample.compass_unreliable_area < 0.5),
+            steady.rejected_m > 0.0)
     shift = state.shift
     if learns_shift(config):
         # The wheels carry EH while the compass is rejected; not while they drift (a tyre mismatch), while the
@@ -133,15 +148,19 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
         following = steady.since_drift < params.filter_follow_hold_m
         learn = (compass_ok & (clean_weight < 0.5) & ~drifting & ~_offset.lost(params, offset.disturbance)
                  & (jnp.abs(odo["turn_rate"]) < _shift.SHIFT_MAX_TURN_RATE) & ~map_used & ~initializing
-                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5) & ~following)
+                 & (initialized > 0.5) & (sample.compass_unreliable_area < 0.5) & ~following & ~step_suspected)
         shift = _shift.update(shift, sample.compass_x - params.X0 - shift.ox, sample.compass_y - params.Y0 - shift.oy,
                               h_c_raw, complementary, b_e, d_t, learn, deg(params.rotation_deg))
+    if finds_wheel_steps(config):
+        # Both filters move by a step from the next sample on, their variance grown by its tolerance.
+        offset = _step.stepped(offset, step)
+        steady = _step.stepped(steady, step)
     return dict(compass_delta=compass_delta, distance_since_F=distance_since_F, history=history, sdd=sdd,
                 factor=factor, absolute=absolute, map_used=map_used, distance_filtered=distance_filtered,
                 offset=offset, steady=steady, shown=shown, f_delta=f_delta,
                 complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift,
                 clean_weight=clean_weight, sigma=sigma, field_restart=lost_restart & learns_shift(config),
-                lost_restart=lost_restart)
+                lost_restart=lost_restart, wheel_step=wheel_step)
 
 
 def seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,

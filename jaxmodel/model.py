@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
+from . import wheel_step as _wheel_step
 from . import dequantize as _dequant
 from . import drift_capture as _capture
 from . import f_delta as _fdelta
@@ -152,6 +153,7 @@ class State(NamedTuple):
     steady: _offset.OffsetState   # F-DELTA without a rate state (the heading while the rate is insignificant)
     hard_iron: _hard_iron.HardIronState  # online X0/Y0 (Config.hard_iron; else carried unchanged)
     shift: _shift.ShiftState      # a shifted hard iron learned while the compass is rejected (Config.compass_shift)
+    wheel_step: _wheel_step.WheelStepState  # a rejection episode's disagreement (jaxmodel/wheel_step.py)
     dequant: _dequant.DequantState  # the wheel heading between pulses (robust modes that turn with the wheels)
     soft_iron: _soft.SoftIronState  # the compass's soft-iron deviation learned from turns (Config.soft_iron)
     soft_field: _sfield.SoftFieldState  # the soft iron read from the field magnitude per heading (Config.soft_iron)
@@ -200,6 +202,7 @@ def init_state(params) -> State:
         kalman=_kalman.init_kalman_state(params), guard=_guard.init_guard_state(),
         offset=_offset.init_offset_state(params), steady=_offset.init_offset_state(_offset.steady_params(params)),
         hard_iron=_hard_iron.init_hard_iron_state(params), shift=_shift.init_shift_state(),
+        wheel_step=_wheel_step.init_wheel_step_state(),
         dequant=_dequant.init_dequant_state(), soft_iron=_soft.init_soft_iron_state(),
         soft_field=_sfield.init_soft_field_state(), stale=_compass.init_stale_state(),
     )
@@ -424,6 +427,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         distance_filtered=fd["distance_filtered"], field_sum=fd["field_sum"], field_count=fd["field_count"], a=a,
         x=x, y=y, distance=state.distance + d_t, refine=refine_state, calibration=cal_state, kalman=kalman_state,
         guard=odo["guard"], offset=offset, steady=steady, hard_iron=hard_iron, shift=fd.get("shift", state.shift),
+        wheel_step=fd.get("wheel_step", state.wheel_step),
         dequant=dequant, soft_iron=soft_iron, soft_field=soft_field, stale=stale,
     )
     out = Outputs(

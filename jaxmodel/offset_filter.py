@@ -172,13 +172,13 @@ class OffsetFields(NamedTuple):
 OffsetState = packed_state(OffsetFields, "OffsetState", "State of the robust F-DELTA filter (one float64 vector).")
 
 
-def _one_hot(field):
-    """1 at ``field`` in the packed vector, 0 elsewhere."""
+def one_hot(field):
+    """1 at ``field`` in the packed vector (an OffsetState's), 0 elsewhere."""
     return jnp.zeros(len(OffsetFields._fields)).at[OffsetFields._fields.index(field)].set(1.0)
 
 
-_BETA_ONEHOT = _one_hot("beta")
-_SINCE_DRIFT_ONEHOT = _one_hot("since_drift")
+_BETA_ONEHOT = one_hot("beta")
+_SINCE_DRIFT_ONEHOT = one_hot("since_drift")
 
 
 def _added(fs, one_hot, amount):
