@@ -19,8 +19,9 @@ sigma_theta^2 = (max(sigma_white, residual RMS)^2 + sigma_coloured^2 n / n_indep
 spread (m^2; ``rotation``): turns only help.  The heading starts at H_W + theta once sigma_theta is within
 ALIGN_SIGMA_DEG; the Kalman course starts with that variance and the position computer at that fix (kalman.align_after,
 which also re-aligns a course that lost its fixes).  A residual RMS beyond ALIGN_RESTART_FACTOR fix sigmas (a fix
-outlier, a wheel course drifting with a tyre mismatch) starts the sums again from the current fix.  Only the track's shape enters, so the distance scale need
-not be known well (a 1 % scale error adds 1 % of the spread to the residual, not to theta).
+outlier, a wheel course drifting with a tyre mismatch) starts the sums again from the current fix.  Only the track's
+shape enters, so the distance scale need not be known well (a 1 % scale error adds 1 % of the spread to the residual,
+not to theta).
 """
 
 from __future__ import annotations

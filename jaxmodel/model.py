@@ -22,7 +22,6 @@ import jax.numpy as jnp
 from . import calibration as _cal
 from . import compass as _compass
 from . import compass_shift as _shift
-from . import wheel_step as _wheel_step
 from . import dequantize as _dequant
 from . import drift_capture as _capture
 from . import f_delta as _fdelta
@@ -36,6 +35,7 @@ from . import refine as _refine
 from . import soft_iron as _soft
 from . import soft_iron_field as _sfield
 from . import track as _track
+from . import wheel_step as _wheel_step
 from .angles import wrap
 from .params import deg
 

@@ -27,9 +27,9 @@ STEP_FIELD_GATE of B_E have nu averaged in STEP_BINS bins of EH, and F-DELTA mov
   turns it steadily), and
 * STEP_FIELD_FRACTION of the episode's metres passed the field gate (an anomaly passes it on a few samples).
 
-From the first bin on, a disagreement that agrees so in every bin, on such samples, is a ``suspected`` step, and the compass-shift learner waits: it believes the wheels, and a step
-read as a hard iron turns the compass to the wrong wheels (a straight road after the step: no heading to tell them
-apart).  A hard iron's samples away from its peak error fail the field gate, and it is not suspected.  The wheels
+From the first bin on, a disagreement that agrees so in every bin, on such samples, is a ``suspected`` step, and the
+compass-shift learner waits: it believes the wheels, and a step read as a hard iron turns the compass to the wrong
+wheels (a straight road after the step: no heading to tell them apart).  A hard iron's samples away from its peak error fail the field gate, and it is not suspected.  The wheels
 must not drift either (a tyre mismatch the rate filter follows turns the disagreement steadily), and samples in fast
 turns are left out (the compass lags).  Then the sums restart.
 """
@@ -110,9 +110,9 @@ def update(state, disagreement, heading, b_m, b_e, d_t, use, episode):
     weight = jnp.where(ok, d_t, 0.0)
     nu = jnp.where(ok, wrap(disagreement), 0.0)
     bin_of = jnp.floor(jnp.mod(jnp.where(ok, heading, 0.0), 2.0 * jnp.pi) / (2.0 * jnp.pi / STEP_BINS))
-    one_hot = jnp.where(jnp.arange(STEP_BINS) == bin_of[..., None], 1.0, 0.0)
-    w = f.w + weight[..., None] * one_hot
-    s = f.s + (weight * nu)[..., None] * one_hot
+    in_bin = jnp.where(jnp.arange(STEP_BINS) == bin_of[..., None], 1.0, 0.0)
+    w = f.w + weight[..., None] * in_bin
+    s = f.s + (weight * nu)[..., None] * in_bin
     seen = f.seen + jnp.where(seen_now, d_t, 0.0)
     sx = f.sx + weight * f.seen
     sxx = f.sxx + weight * f.seen * f.seen
@@ -135,12 +135,13 @@ def update(state, disagreement, heading, b_m, b_e, d_t, use, episode):
     one_angle = (n >= 1.0) & agree & steady_along & (jnp.abs(mean) > jnp.radians(STEP_MIN_DEG))
     # Nearly every sample of the episode reads |B| as expected: an anomaly that turns the field as far passes the
     # field gate on a few of its samples only (independent urban seed 14: 52 of 259 m, two headings, 22 deg).
-    one_angle = one_angle & (jnp.sum(w, axis=-1) >= STEP_FIELD_FRACTION * seen)
+    one_angle = one_angle & (total >= STEP_FIELD_FRACTION * seen)
     suspected = episode & one_angle
-    stepped = ok & one_angle & spread & (jnp.sum(w, axis=-1) >= STEP_MIN_M)
+    stepped = ok & one_angle & spread & (total >= STEP_MIN_M)
     keep = jnp.where(stepped | ~episode, 0.0, 1.0)
     new = WheelStepState(keep[..., None] * jnp.concatenate([w, s, jnp.stack([seen, sx, sxx, sxn], axis=-1)], axis=-1))
     return new, jnp.where(stepped, mean, 0.0), suspected
+
 
 _MOVED = sum(one_hot(f) * v for f, v in (("delta", 1.0), ("disturbance", -1.0), ("level", -1.0)))
 _CLEARED = 1.0 - one_hot("rejected_m") - one_hot("lost_m")
