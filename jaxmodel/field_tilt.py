@@ -13,7 +13,8 @@ the hard-iron calibration along the car's axes, is read the same way.)  Outside 
 simulator's |B| follows this to 1.1-1.4 % (docs/tuning.md, "Stop 58"); anomalies, which also change the heading, are
 left out by the heading's own rejection (``clean``) and a gate on this innovation (FIELD_HARD_GATE).
 
-B_E is the one the user gave (``field_magnitude`` > 0), else learned on the drive (``reference``).  Not B_E per
+B_E is learned on the drive once its headings cover the circle; before that the one the user gave
+(``field_magnitude`` > 0), else the drive's mean (``reference``).  Not B_E per
 heading (FIG. 8C, claim 13): learned per heading it learns the grades too (stops 21 and 41).  Its first harmonic is
 what g and r are, so the learned reference is the regression of ln|B| on the heading's harmonics
 (``soft_iron_field``) without its first harmonic once the headings cover the circle (its second harmonic is a soft
@@ -70,11 +71,13 @@ def reads_field(params):
 
 
 def reference(params, field_sum, field_weight, soft_field, harmonics_of_a):
-    """(ln B_E at compass heading A, whether there is one) that ln|B| is read against: ln field_magnitude when
-    given; else, once the headings cover the circle, the regression of ln|B| on A's harmonics without its first
-    harmonic (``soft_iron_field.magnitude_without_first_harmonic``: the constant and a soft iron's second harmonic);
-    before that the distance-weighted mean of |B| that B_E per heading learned (``compass.learn_field``'s sums, over
-    all bins).  Each needs REFERENCE_MIN_M metres.  ``harmonics_of_a``: ``soft_iron.harmonics(A)``, A the raw
+    """(ln B_E at compass heading A, whether there is one) that ln|B| is read against: once the headings cover the
+    circle, the regression of ln|B| on A's harmonics without its first harmonic
+    (``soft_iron_field.magnitude_without_first_harmonic``: the constant and a soft iron's second harmonic); before
+    that ln field_magnitude when given, else the distance-weighted mean of |B| that B_E per heading learned
+    (``compass.learn_field``'s sums, over all bins).  The drive's own regression before the value given: a factory's
+    B_E is 1-2 % off and a hard-iron residual moves |B| by as much, which |B| then read as a grade heading north or
+    south (independent simulator with its calibration error, true parameters: 1.2714 -> 1.2491 deg; stop 65).  Each needs REFERENCE_MIN_M metres.  ``harmonics_of_a``: ``soft_iron.harmonics(A)``, A the raw
     compass heading."""
     fit, covered = _sfield.magnitude_without_first_harmonic(soft_field, harmonics_of_a)
     covered = covered & (soft_field.fields().n00 > REFERENCE_MIN_M)
@@ -82,7 +85,7 @@ def reference(params, field_sum, field_weight, soft_field, harmonics_of_a):
     mean = jnp.log(jnp.maximum(jnp.sum(field_sum), 1e-9) / jnp.maximum(total, 1e-9))
     given = params.field_magnitude > 0.0
     ln_given = jnp.log(jnp.where(given, params.field_magnitude, 1.0))
-    ln_ref = jnp.where(given, ln_given, jnp.where(covered, fit, mean))
+    ln_ref = jnp.where(covered, fit, jnp.where(given, ln_given, mean))
     return ln_ref, given | covered | (total > REFERENCE_MIN_M)
 
 

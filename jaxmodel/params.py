@@ -57,9 +57,10 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
               "expected horizontal field magnitude B_E (FIG. 8C); <= 0 means learned on the drive per heading "
               "(claim 13): a distance-weighted mean of |B| in 12 heading bins, excluding standstill, disturbed "
               "samples and samples beyond field_learn_gate, forgetting over field_memory_m (jaxmodel.compass); "
-              "with filter_field_sigma > 0, |B| also measures the compass's grade and roll errors against B_E "
-              "given, else against the drive's regression of ln|B| on the heading's harmonics without its first "
-              "harmonic (jaxmodel.field_tilt)"),
+              "with filter_field_sigma > 0, |B| also measures the compass's grade and roll errors against the "
+              "drive's regression of ln|B| on the heading's harmonics without its first harmonic once the headings "
+              "cover the circle, before that against B_E given (else the drive's mean); given, the roll error is "
+              "remembered over kilometres (jaxmodel.field_tilt, offset_filter.ROLL_M)"),
     ParamSpec("deviation_deg", (0.0,) * DEVIATION_TABLE_SIZE, "deg",
               "compass deviation table (FIG. 8A block 4), 36 entries at raw headings 0, 10, ..., 350 deg, "
               "interpolated periodically"),
