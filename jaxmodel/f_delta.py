@@ -112,9 +112,10 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
     # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts
-    # the hold.
+    # the hold.  Its straight stretches seeing the drift too let a small one be shown.
+    agreed = captures_drift(config) & _follow.stretches_agree(params, state.calibration, offset, odo["track"])
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
-                                   calibrated=calibrated)
+                                   calibrated=calibrated, agreed=agreed)
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count

@@ -32,15 +32,16 @@ FOLLOW_STEEPNESS = 8.0
 """Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
 
 
-def follow_weight(params, rate_filter):
+def follow_weight(params, rate_filter, significance=None):
     """How much the steady F-DELTA takes the rate filter's state this sample, in [0, 1].
 
     A smooth step in the rate's significance z = |beta| / sigma_beta, 0.5 at z =
-    filter_rate_significance and 1e-7 at z = 0 (so gradients exist across the switch; at 10 Hz the
-    pull of an insignificant rate is nil, of a significant one complete within samples).
+    ``significance`` (default filter_rate_significance) and 1e-7 at z = 0 (so gradients exist across the switch; at
+    10 Hz the pull of an insignificant rate is nil, of a significant one complete within samples).
     """
+    significance = params.filter_rate_significance if significance is None else significance
     z = jnp.abs(rate_filter.beta) / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
-    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - params.filter_rate_significance))
+    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - significance))
 
 
 def significant(params, rate_filter):
