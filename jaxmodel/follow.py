@@ -76,27 +76,13 @@ def restart_together(params, rate_filter, steady, steady_lost_restart, clean_wei
     return rate_filter, steady, rate_follows
 
 
-AGREED_STRETCH_Z = 1.0
+AGREED_STRETCH_Z = 2.0
 """The straight stretches agree with the rate filter's rate when their unapplied rate has its sign and is beyond this
-many of its sigmas (``stretches_agree``)."""
+many of its sigmas (``stretches_agree``; 1.0 let chance agreements show a hill's and a shifted hard iron's fake
+rates: highway/hills/105 2.06 -> 4.63 deg, highway/hard_iron_shift/103 1.85 -> 6.01)."""
 AGREED_SIGNIFICANCE = 2.0
 """While they agree, the heading shows the rate filter from this significance of its rate on (filter_rate_significance
 otherwise), whatever the rate's size (``follow``)."""
-LOCKED_RATE_REJECTED = 0.1
-"""The steady filter is locked out while it has rejected the compass for filter_reacquire_m and the rate filter for
-less than this fraction of it (``locked_out``)."""
-
-
-def locked_out(params, steady, rate_filter):
-    """Whether the steady filter is locked out of a compass the rate filter follows (bool): it has rejected the compass
-    for filter_reacquire_m, the rate filter for under LOCKED_RATE_REJECTED of that.  The rate filter's drift then
-    explains what the steady filter takes for a disturbance: on the independent highway drives with the ratio 40 ppm
-    off, the steady filter rejected a clean compass for 7-10 km while the rate filter (25 +- 6 µrad/m, 4 sigmas)
-    accepted it, 22 deg apart before the filters' resync (FAR_RESTART_DEG 30) brought them together."""
-    return ((steady.fields().rejected_m > params.filter_reacquire_m)
-            & (rate_filter.fields().rejected_m < LOCKED_RATE_REJECTED * params.filter_reacquire_m))
-
-
 def stretches_agree(params, calibration, rate_filter, track):
     """Whether the straight stretches (EP 0619873's pulse counts) see the drift the rate filter sees (bool): their
     unapplied rate (``calibration.stretches_rate``) has the rate filter's sign and is beyond AGREED_STRETCH_Z of its
@@ -130,9 +116,7 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     the rate filter from AGREED_SIGNIFICANCE of its rate on, without the show rate: a ratio 40 ppm off the tyres' (a
     file identified to 4e-5; 25 µrad/m of drift) left the independent simulator's highway drives 8.8 deg off with a
     clean compass, the rate filter knowing the drift (20 +- 9 µrad/m after 15 min) and the steady filter lagging it by
-    5-8 deg (docs/tuning.md, stop 66).  So does a steady filter ``locked_out`` of the compass the rate filter follows,
-    from filter_rate_significance on (a lower significance there let the rate a shifted hard iron fakes be shown:
-    highway/hard_iron_shift/301 0.79 -> 1.33 deg).
+    5-8 deg (docs/tuning.md, stop 66).
 
     ``calibrated`` (``calibration.corrected``, in [0, 1]): the calibration has moved the ratio from the parameters'.
     The show rate is then CALIBRATED_SHOW_FRACTION of filter_follow_show_rate: the calibrated ratio's residual of
@@ -162,11 +146,9 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
     show_rate = params.filter_follow_show_rate * (1.0 - (1.0 - CALIBRATED_SHOW_FRACTION) * calibrated)
     w_rate = w_rate * jax.nn.sigmoid(_rate.FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
-    # Unless the stretches see the drift too (the compass alone does not fake it there), or the steady filter is
-    # locked out of the compass the rate filter follows.
-    significance = jnp.where(agreed, AGREED_SIGNIFICANCE, params.filter_rate_significance)
-    relaxed = agreed | locked_out(params, steady, rate_filter)
-    w_rate = jnp.where(relaxed, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, significance)), w_rate)
+    # Unless the stretches see the drift too: the compass alone does not fake it there.
+    w_rate = jnp.where(agreed, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, AGREED_SIGNIFICANCE)),
+                       w_rate)
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))
