@@ -83,6 +83,8 @@ rates: highway/hills/105 2.06 -> 4.63 deg, highway/hard_iron_shift/103 1.85 -> 6
 AGREED_SIGNIFICANCE = 2.0
 """While they agree, the heading shows the rate filter from this significance of its rate on (filter_rate_significance
 otherwise), whatever the rate's size (``follow``)."""
+
+
 def stretches_agree(params, calibration, rate_filter, track):
     """Whether the straight stretches (EP 0619873's pulse counts) see the drift the rate filter sees (bool): their
     unapplied rate (``calibration.stretches_rate``) has the rate filter's sign and is beyond AGREED_STRETCH_Z of its

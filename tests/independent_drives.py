@@ -15,7 +15,7 @@ from identification.diagnostics import checked_params  # noqa: E402
 from identification.drive_log import read_drive  # noqa: E402
 from identification.estimate import estimate_drive  # noqa: E402
 
-__all__ = ["heading_error_deg", "independent_sim", "unidentified_params"]
+__all__ = ["heading_error_deg", "independent_sim", "rmse_after_first_minute", "unidentified_params"]
 
 
 def unidentified_params(params_path):
@@ -34,3 +34,8 @@ def heading_error_deg(path, params, config=jm.Config()):
     t = np.array([float(r["time_s"]) for r in rows])
     truth = np.array([float(r["heading_unwrapped_deg"]) for r in rows])
     return t, (np.asarray(cols["heading_deg"]) - truth + 180.0) % 360.0 - 180.0
+
+
+def rmse_after_first_minute(t, err):
+    """Heading RMSE (deg) after the first minute of ``heading_error_deg``'s (time s, error deg)."""
+    return float(np.sqrt(np.mean(err[t >= 60.0] ** 2)))
