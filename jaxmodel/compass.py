@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
-from .params import DEVIATION_TABLE_SIZE, deg
+from .params import DEVIATION_TABLE_SIZE, deg, field_magnitude_given
 
 MIN_FIELD = 1e-9
 """A horizontal field weaker than this (compass units) carries no direction: the sample is skipped."""
@@ -92,7 +92,7 @@ def expected_field(params, field_sum, field_weight, heading, b_m):
     overall = jnp.where(total_w > 1e-9, overall, b_m)
     per_bin = (field_sum + FIELD_PRIOR_M * overall) / (field_weight + FIELD_PRIOR_M)
     learned = jnp.sum(_bin_weights(heading) * per_bin)
-    return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned)
+    return jnp.where(field_magnitude_given(params), params.field_magnitude, learned)
 
 
 def learn_field(params, field_sum, field_weight, heading, b_m, b_e, d_t, clean):

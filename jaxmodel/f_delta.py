@@ -21,7 +21,7 @@ from . import rate_significance as _rate
 from . import wheel_step as _step
 from .angles import safe_div, wrap
 from .packed import computed_once
-from .params import deg
+from .params import deg, field_magnitude_given
 
 
 def learns_shift(config):
@@ -203,4 +203,4 @@ def seed_expected_field(params, state, b_m, compass_ok):
     field_sum = state.field_sum.at[0].add(jnp.where(compass_ok, b_m, 0.0))
     field_count = state.field_count.at[0].add(jnp.where(compass_ok, 1.0, 0.0))
     learned = safe_div(field_sum[0], field_count[0], fallback=1.0)
-    return jnp.where(params.field_magnitude > 0.0, params.field_magnitude, learned), (field_sum, field_count)
+    return jnp.where(field_magnitude_given(params), params.field_magnitude, learned), (field_sum, field_count)

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from . import soft_iron_field as _sfield
 from .angles import sin_polynomial
-from .params import deg
+from .params import deg, field_magnitude_given
 
 ROLL_SIGMA_DEG = 1.5
 """Stationary sigma of the roll state r (deg of heading error heading magnetic north or south): crossfall of 1-2.5 %
@@ -85,7 +85,7 @@ def reference(params, field_sum, field_weight, soft_field, harmonics_of_a):
     covered = covered & (soft_field.fields().n00 > REFERENCE_MIN_M)
     total = jnp.sum(field_weight)
     mean = jnp.log(jnp.maximum(jnp.sum(field_sum), 1e-9) / jnp.maximum(total, 1e-9))
-    given = params.field_magnitude > 0.0
+    given = field_magnitude_given(params)
     ln_given = jnp.log(jnp.where(given, params.field_magnitude, 1.0))
     ln_ref = jnp.where(covered, fit, jnp.where(given, ln_given, mean))
     return ln_ref, given | covered | (total > REFERENCE_MIN_M)

@@ -102,7 +102,7 @@ import jax.numpy as jnp
 
 from .angles import safe_div, wrap
 from .packed import computed_once, packed_state
-from .params import deg
+from .params import deg, field_magnitude_given
 from .rate_significance import large_drift
 from .field_tilt import ROLL_SIGMA_DEG, reads_field
 from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
@@ -253,7 +253,7 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     a = ad_signed
     phi = jnp.exp(-d_t / params.filter_gm_m)
     phi_g = jnp.exp(-d_t / params.filter_tilt_m)
-    phi_r = jnp.exp(-d_t / jnp.where(params.field_magnitude > 0.0, ROLL_M, params.filter_tilt_m))
+    phi_r = jnp.exp(-d_t / jnp.where(field_magnitude_given(params), ROLL_M, params.filter_tilt_m))
     # Without an absolute heading the rate fades over filter_rate_corr_m metres: what it holds
     # beyond the calibration's correction is learned from a noisy compass, and extrapolating it
     # through a dropout of kilometres turns the heading further off than the wheels alone.

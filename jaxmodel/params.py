@@ -441,3 +441,9 @@ def save_params(path: str | Path, params: Params, report: Mapping[str, Any] | No
 def deg(x):
     """Degrees to radians (a name that reads well next to the *_deg keys)."""
     return x * (math.pi / 180.0)
+
+
+def field_magnitude_given(params):
+    """Whether B_E was given (``field_magnitude`` > 0, bool); else it is learned on the drive per heading (claim 13).
+    The one place that reads the parameter's "<= 0 means learned" convention."""
+    return params.field_magnitude > 0.0
