@@ -119,6 +119,8 @@ def _hard_iron_warnings(name, drive, params, cols, valid) -> list[str]:
 
 
 def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[str]:
+    from jaxmodel.params import field_magnitude_given
+
     out = []
     valid = np.asarray(cols["compass_valid"]) > 0
     n = valid.size
@@ -142,7 +144,7 @@ def _compass_warnings(name, drive, params, cols, mode="complementary") -> list[s
     b_e = float(params.field_magnitude)
     if np.any(ok):
         med = float(np.median(mag[ok]))
-        if b_e > 0 and not FIELD_RATIO[0] <= med / b_e <= FIELD_RATIO[1]:
+        if field_magnitude_given(params) and not FIELD_RATIO[0] <= med / b_e <= FIELD_RATIO[1]:
             out.append(f"{name}: the compass looks uncalibrated: measured horizontal field {med:.4g} "
                        f"(median) against field_magnitude {b_e:.4g} (x{med / b_e:.2f}); check the compass "
                        f"offsets X0/Y0 and its scale, or field_magnitude")
