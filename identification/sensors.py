@@ -34,6 +34,14 @@ import numpy as np
 
 DEFAULT_FIELD_UT = 20.0
 """Horizontal earth field (µT) used when the parameters give none (field_magnitude <= 0)."""
+
+
+def horizontal_field(field_magnitude):
+    """The simulated horizontal field (µT) for a parameter ``field_magnitude``: itself when given (> 0), else
+    DEFAULT_FIELD_UT (the estimator's reading of the same convention: ``jaxmodel.params.field_magnitude_given``)."""
+    return field_magnitude if field_magnitude > 0 else DEFAULT_FIELD_UT
+
+
 DIP_RATIO = 2.0
 """Vertical over horizontal field, tan(dip): 2.0 is a dip of 63.4°, as in central Europe / the US midwest."""
 DEVIATION_TABLE_SIZE = 36
@@ -479,9 +487,9 @@ class SensorModel:
     def from_params(cls, params, seed=0, **kwargs):
         """A SensorModel whose compass and counters are consistent with a flat parameter dict (SPEC §3 keys)."""
         p = dict(params)
-        fm = float(p.get("field_magnitude", 0.0))
         kw = dict(dpp_left=p.get("dpp_left", 0.02), dpp_right=p.get("dpp_right", 0.02),
-                  counter_modulus=p.get("counter_modulus", 65536), horizontal=fm if fm > 0 else DEFAULT_FIELD_UT,
+                  counter_modulus=p.get("counter_modulus", 65536),
+                  horizontal=horizontal_field(float(p.get("field_magnitude", 0.0))),
                   variation_deg=p.get("variation_deg", 0.0), rotation_deg=p.get("rotation_deg", 0.0),
                   X0=p.get("X0", 0.0), Y0=p.get("Y0", 0.0), deviation_deg=p.get("deviation_deg"))
         kw.update(kwargs)

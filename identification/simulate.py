@@ -264,8 +264,7 @@ def _compass(route, smp: _Samples, p, anomalies, faults, rng_anom, rng_compass) 
         n_anomalies = _place_anomalies(field, route, float(smp.s_k[-1]), rng_anom)
     disturbance, unreliable = field.evaluate(smp.x, smp.y)
     transients = _transients(smp, disturbance, anomalies, rng_anom)
-    fm = p["field_magnitude"]
-    horizontal = fm if fm > 0.0 else sensors.DEFAULT_FIELD_UT
+    horizontal = sensors.horizontal_field(p["field_magnitude"])
     n = smp.t.size
     noise = COMPASS_NOISE_UT * rng_compass.standard_normal((n, 2))
     compass_x, compass_y = sensors.compass_reading(

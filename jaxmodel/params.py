@@ -445,5 +445,6 @@ def deg(x):
 
 def field_magnitude_given(params):
     """Whether B_E was given (``field_magnitude`` > 0, bool); else it is learned on the drive per heading (claim 13).
-    The one place that reads the parameter's "<= 0 means learned" convention."""
+    The estimator's one reader of the parameter's "<= 0 means learned" convention (the simulator's is
+    ``identification.sensors.horizontal_field``)."""
     return params.field_magnitude > 0.0
