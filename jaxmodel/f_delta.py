@@ -99,8 +99,10 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
     steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
+    # The steady filter is not hardened against a compass that disagrees because it lags the wheels' drift.
+    lagging = drifting | _rate.steady_lags(params, offset, state.steady)
     steady, steady_weight, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,
-                                                                absolute_ok & ~initializing, drifting, tilt, d_lost,
+                                                                absolute_ok & ~initializing, lagging, tilt, d_lost,
                                                                 drift_significant, dt=odo["dt"], young=young,
                                                                 with_lost_restart=True)
     # A turn with a compass the steady filter accepts checked the anchor at another heading: ANCHOR_TURN_M metres a

@@ -129,7 +129,8 @@ class OffsetFields(NamedTuple):
     the steady filter metres since its follow hold last restarted (``follow.follow``, ``restart_hold``);
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
     LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last
-    accepted."""
+    accepted; ``accepted_m`` metres driven with absolute headings since the filter last (re)started or had rejected the
+    compass for filter_reacquire_m (how long its rate has followed the compass: ``rate_significance.steady_lags``)."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray
@@ -165,6 +166,7 @@ class OffsetFields(NamedTuple):
     level: jnp.ndarray
     wander: jnp.ndarray
     lost_m: jnp.ndarray
+    accepted_m: jnp.ndarray
 
 
 # One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (unrolled.py): inside the vmapped scan
@@ -200,7 +202,8 @@ def init_offset_state(params):
     return OffsetState.pack(OffsetFields(delta=z, beta=z, c=z, k=z, g=z, r=z, **upper(P), disturbance=z,
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
                                          # unsteady until LOST_STEADY_M of compass samples said otherwise
-                                         level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z))
+                                         level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z,
+                                         accepted_m=z))
 
 
 ROLL_M = 6000.0
@@ -280,7 +283,7 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, r=phi_r * f.r, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
-        since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m))
+        since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m, accepted_m=f.accepted_m))
 
 
 START_ANCHOR_FRACTION = 1.0
@@ -407,7 +410,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **new_P,
         disturbance=disturbance - dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
-        rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m)
+        rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m,
+        accepted_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.accepted_m + d_t))
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran

@@ -56,3 +56,32 @@ def large_drift(params, rate_filter):
     the window in which recalibrations restart the steady filter's follow hold
     (``offset_filter.count_since_large_drift``), and, with the calibration off, the hold itself (``follow.follow``)."""
     return significant(params, rate_filter) & (jnp.abs(rate_filter.beta) > params.filter_follow_hold_rate)
+
+
+LAG_DRIFT_DEG = 0.8
+"""``steady_lags``: the rate filter's rate turns F-DELTA by more than this over filter_reacquire_m (deg; 14 µrad/m),"""
+LAG_Z = 1.5
+"""... at more than this many of its sigmas,"""
+LAG_LEAD_M = 100.0
+"""... and that filter has followed the compass for this many metres (m) longer than the steady one has rejected it."""
+
+
+def steady_lags(params, rate_filter, steady):
+    """Whether the steady F-DELTA disagrees with the compass because it lags the wheels' drift (bool): the rate filter
+    has followed the compass (its ``accepted_m``) since before the steady filter began to reject it (its
+    ``rejected_m``, LAG_LEAD_M), with a rate beyond LAG_Z sigmas that turns F-DELTA by LAG_DRIFT_DEG over
+    filter_reacquire_m.  The steady filter is then not hardened against the compass (``offset_filter.update``'s
+    ``drifting``).
+
+    Where the seed is silent.  A parameter file whose left/right ratio is 30 ppm off the tyres' drifts the wheels by
+    19 µrad/m (1.1 deg/km): under ``drifting``'s 2 deg per filter_reacquire_m, the steady filter (no rate) lagged the
+    drift by 2-3 deg, its compass hardened as a persistent compass error, and it never took the compass back
+    (independent simulator, highway seed 30: 23 deg off after 27 km, 12.9 deg RMSE; 4.1 with this, the rate filter
+    1.4).  A shifted hard iron that both filters rejected, the rate filter restarting on it, is not let in: the rate
+    filter has not followed the compass since before the steady one rejected it (highway/hard_iron_shift/103 1.85 deg
+    with this, 8.0 with ``drifting`` at 0.8 deg; docs/tuning.md, stop 70).  rate_filter, steady: OffsetStates (the
+    rate filter after this sample's update, the steady one before it)."""
+    rate_filter_fields = rate_filter.fields()
+    return ((rate_filter_fields.accepted_m > steady.rejected_m + LAG_LEAD_M)
+            & (jnp.abs(rate_filter_fields.beta) * params.filter_reacquire_m > deg(LAG_DRIFT_DEG))
+            & (rate_filter_fields.beta ** 2 > LAG_Z ** 2 * rate_filter_fields.p11))
