@@ -16,11 +16,12 @@ evaluation (a simulator written by someone who had not read identification/simul
 scenarios.py or sensors.py).
 
     python bench/bench_independent.py [SEED ...] [--kinds urban,mixed] [--clean] [--hide-mismatch]
-        [--work-dir /tmp/indep/bench] [--disable anomalies,hills] [--extra-args "..."]
+        [--work-dir /tmp/indep/bench] [--disable anomalies,hills] [--extra-args "..."] [--ratio-off-ppm E]
 
 --hide-mismatch gives odocompass the tyres' mean distance per pulse on both wheels (what a user who has
 not measured the mismatch has), so the left/right calibration must find it; the table then also prints
-each drive's final dpp_ratio less the true dpp_right / dpp_left.
+each drive's final dpp_ratio less the true dpp_right / dpp_left.  --ratio-off-ppm E gives it the tyres' own dpp but
+the right one E ppm off (a file a little off the tyres: docs/tuning.md, stops 69-70).
 """
 from __future__ import annotations
 
@@ -113,7 +114,12 @@ def main(argv=None):
     ap.add_argument("--extra-args", default="", help="extra arguments for odocompass estimate")
     ap.add_argument("--hide-mismatch", action="store_true",
                     help="both wheels' dpp set to their mean in the parameter file: the calibration must find it")
+    ap.add_argument("--ratio-off-ppm", type=float, default=0.0,
+                    help="the parameter file's dpp_right this many ppm off the tyres' (the heading must follow the "
+                         "small drift it leaves)")
     a = ap.parse_args(argv)
+    if a.hide_mismatch and a.ratio_off_ppm:
+        ap.error("--hide-mismatch and --ratio-off-ppm change the same parameters: give one")
     cli = find_cli()
     kinds = [k for k in a.kinds.split(",") if k]
     modes = [m for m in a.modes.split(",") if m]
@@ -134,6 +140,8 @@ def main(argv=None):
             row = {}
             if a.hide_mismatch:
                 params = sim.write_hidden_mismatch_params(params)
+            if a.ratio_off_ppm:
+                params = sim.write_ratio_off_params(params, a.ratio_off_ppm)
             for mode in modes:
                 out = drive[:-4] + f".est_{mode}.csv"
                 rc, lines, dt, cmd = run_estimate(cli, drive, params, out, mode, extra)
@@ -164,6 +172,8 @@ def main(argv=None):
         title += "  [clean validation drives]"
     if a.hide_mismatch:
         title += "  [tyre mismatch hidden: the calibration finds it]"
+    if a.ratio_off_ppm:
+        title += f"  [file's dpp_right {a.ratio_off_ppm:+g} ppm off]"
     if dis:
         title += "  [disabled: " + ",".join(dis) + "]"
     print(title)

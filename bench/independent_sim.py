@@ -425,6 +425,18 @@ def write_hidden_mismatch_params(params_path):
     return path
 
 
+def write_ratio_off_params(params_path, ppm):
+    """Beside the drive's parameter file, a copy with dpp_right ``ppm`` parts per million off the tyres' (a file
+    identified before the tyres' pressure or wear moved their ratio, or identified to that precision; docs/tuning.md,
+    stops 69-70), ``TAG.ratio_off.params.json``.  Returns its path."""
+    with open(params_path) as f:
+        params = json.load(f)
+    path = params_path[:-len(".params.json")] + ".ratio_off.params.json"
+    with open(path, "w") as f:
+        json.dump(dict(params, dpp_right=params["dpp_right"] * (1.0 + 1e-6 * ppm)), f, indent=1)
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kind", choices=KINDS, required=True)

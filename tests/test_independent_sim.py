@@ -44,6 +44,17 @@ def test_the_drive_is_deterministic_and_the_parameter_file_is_valid(tmp_path):
     assert {"P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right"} <= set(json.loads(Path(a[1]).read_text()))
 
 
+def test_a_parameter_file_a_little_off_changes_only_the_right_wheels_dpp(tmp_path):
+    _, params_path = sim.make_drive("highway", 3, tmp_path, duration=30.0)
+    true = json.loads(Path(params_path).read_text())
+    off_path = sim.write_ratio_off_params(params_path, 30.0)
+    checked_params(off_path)
+    off = json.loads(Path(off_path).read_text())
+    assert off["dpp_right"] / off["dpp_left"] == pytest.approx(true["dpp_right"] / true["dpp_left"] * (1 + 30e-6),
+                                                                rel=1e-12)
+    assert {k: v for k, v in off.items() if k != "dpp_right"} == {k: v for k, v in true.items() if k != "dpp_right"}
+
+
 @pytest.mark.slow
 def test_grades_are_not_taken_for_hard_iron_but_an_offset_is(tmp_path):
     """Before stop 45 a calibrated compass on 8-9 % grades was called uncalibrated ('the measured horizontal field
