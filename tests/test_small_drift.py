@@ -45,18 +45,28 @@ def test_stretches_agree_only_in_the_rate_filters_direction_and_beyond_their_sig
 
 
 
+def _highway_with_ratio_off(tmp_path, seed, relative):
+    """The independent simulator's highway drive ``seed`` (every feature on) and the parameters of its file with the
+    right wheel's distance per pulse ``relative`` high."""
+    path, params_path = independent_sim.make_drive("highway", seed, tmp_path)
+    params = unidentified_params(params_path)
+    return path, params._replace(dpp_right=params.dpp_right * (1.0 + relative))
+
+
+def _rmse(path, params):
+    return rmse_after_first_minute(*heading_error_deg(path, params))
+
+
 @pytest.mark.slow
 def test_a_ratio_40_ppm_off_the_file_is_followed_on_the_highway(tmp_path, traced_constants):
     """Highway seed 31, every feature on, the tyres' dpp given but the right one 4e-5 high: ~25 µrad/m of drift, under
     the show rate and the calibration's significance.  The steady filter lagged it and then rejected the clean compass
     for kilometres: 11.46 deg RMSE.  Shown while the stretches agree: 4.38 deg (the same drive with the file's ratio
     exact: 0.68)."""
-    path, pp = independent_sim.make_drive("highway", 31, tmp_path)
-    params = unidentified_params(pp)
-    params = params._replace(dpp_right=params.dpp_right * (1.0 + 4e-5))
-    shown = rmse_after_first_minute(*heading_error_deg(path, params))
+    path, params = _highway_with_ratio_off(tmp_path, 31, 4e-5)
+    shown = _rmse(path, params)
     with traced_constants((follow, "AGREED_STRETCH_Z", np.inf)):
-        lagged = rmse_after_first_minute(*heading_error_deg(path, params))
+        lagged = _rmse(path, params)
     assert shown < 0.6 * lagged
     assert shown < 6.0
 
@@ -115,12 +125,10 @@ def test_a_ratio_30_ppm_off_the_file_does_not_lock_the_steady_filter_out(tmp_pat
     ``drifting`` (2 deg per km) and the show rate.  The steady filter lagged it by 2-3 deg, hardened against the compass
     and never took it back: 23 deg off after 27 km, 12.9 deg RMSE.  Not hardened while it lags (``steady_lags``): 4.1
     deg (the rate filter alone 1.4; the file's ratio exact: 0.87)."""
-    path, pp = independent_sim.make_drive("highway", 30, tmp_path)
-    params = unidentified_params(pp)
-    params = params._replace(dpp_right=params.dpp_right * (1.0 + 3e-5))
-    lagging = rmse_after_first_minute(*heading_error_deg(path, params))
+    path, params = _highway_with_ratio_off(tmp_path, 30, 3e-5)
+    lagging = _rmse(path, params)
     with traced_constants((rate_significance, "LAG_Z", np.inf)):
-        locked_out = rmse_after_first_minute(*heading_error_deg(path, params))
+        locked_out = _rmse(path, params)
     assert locked_out > 8.0
     assert lagging < 0.5 * locked_out
     assert lagging < 6.0
