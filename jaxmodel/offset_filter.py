@@ -338,11 +338,11 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     DELTA = delta + c + sin(psi_m) g + cos(psi_m) r + white noise (h = [1, 0, 1, 0, sin, cos]); ``tilt`` = (sin(psi_m),
     cos(psi_m)) from ``field_tilt.tilt_gain``: a pitch turns a level-mounted compass by g sin(psi_m), a roll by
     r cos(psi_m).
-    ``drifting`` (bool, from ``rate_significance.drifting``): the rate filter explains a long disagreement by the
-    wheels, so the compass is not hardened against; it is kept out no longer than filter_reacquire_m only when that
-    rate is also significant (``drift_significant``, bool, from ``rate_significance.drifting_significantly``; default
-    ``drifting``).  A filter ``lost`` by its own running disagreement restarts from the compass after
-    filter_reacquire_lost_m.
+    ``drifting`` (bool, from ``rate_significance.drifting``; for the steady filter also
+    ``rate_significance.steady_lags``): the rate filter explains a long disagreement by the wheels, so the compass is
+    not hardened against; it is kept out no longer than filter_reacquire_m only when that rate is also significant
+    (``drift_significant``, bool, from ``rate_significance.drifting_significantly``; default ``drifting``).  A filter
+    ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     ``dt`` (s, the sample's time step; default: not counted in time): the white noise is counted at most once per
     COMPASS_CORR_S seconds too.  ``young`` (bool, ``young``): the start's anchor is young; a compass that disagrees

@@ -81,7 +81,6 @@ def steady_lags(params, rate_filter, steady):
     filter has not followed the compass since before the steady one rejected it (highway/hard_iron_shift/103 1.85 deg
     with this, 8.0 with ``drifting`` at 0.8 deg; docs/tuning.md, stop 70).  rate_filter, steady: OffsetStates (the
     rate filter after this sample's update, the steady one before it)."""
-    rate_filter_fields = rate_filter.fields()
-    return ((rate_filter_fields.accepted_m > steady.rejected_m + LAG_LEAD_M)
-            & (jnp.abs(rate_filter_fields.beta) * params.filter_reacquire_m > deg(LAG_DRIFT_DEG))
-            & (rate_filter_fields.beta ** 2 > LAG_Z ** 2 * rate_filter_fields.p11))
+    return ((rate_filter.accepted_m > steady.rejected_m + LAG_LEAD_M)
+            & (jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(LAG_DRIFT_DEG))
+            & (rate_filter.beta ** 2 > LAG_Z ** 2 * rate_filter.p11))
