@@ -100,11 +100,12 @@ def test_a_chatter_of_spurious_pulses_is_taken_out_once_the_headings_tell(traced
     the guard's tolerance, 20 pulses in all, ~16 deg of wheel heading for good) on urban/baseline/107, a judge seed
     of that row (the form of wheel_step.py was chosen on seeds 101 and 104).  Measured (stop 64): the default 6.01 deg
     RMSE after the first minute without the step (the compass clean within 2 deg: 1.43 deg alone), 2.91 deg with it;
-    the clean drive 0.34 deg either way."""
+    the clean drive 0.34 deg either way.  Since stop 70 3.94 deg without the step: the steady filter is no longer
+    hardened against a compass that the rate filter follows (``rate_significance.steady_lags``)."""
     drive = sc.make_drive("urban", "baseline", 107)
     clean = default_rmse_after_first_minute(drive)
     outside_matrix.DISTURBANCES["pulse_chatter"](drive)
     with_step = default_rmse_after_first_minute(drive)
     with traced_constants((ws, "STEP_MIN_M", 1e12)):
         without = default_rmse_after_first_minute(drive)
-    assert clean < 0.5 and with_step < 3.5 and without > 5.0, (clean, with_step, without)
+    assert clean < 0.5 and with_step < 3.5 and without > 1.25 * with_step, (clean, with_step, without)
