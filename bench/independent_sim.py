@@ -416,24 +416,30 @@ def make_drive(kind, seed, out_dir, *, duration=900.0, clean=False, disable=()):
 def write_hidden_mismatch_params(params_path):
     """Beside the drive's parameter file, a copy with dpp_left = dpp_right = their mean (a user who never measured the
     tyres' mismatch: the calibration must find it), ``TAG.hidden.params.json``.  Returns its path."""
-    with open(params_path) as f:
-        params = json.load(f)
+    params = _read_params(params_path)
     mean = 0.5 * (params["dpp_left"] + params["dpp_right"])
-    path = params_path[:-len(".params.json")] + ".hidden.params.json"
-    with open(path, "w") as f:
-        json.dump(dict(params, dpp_left=mean, dpp_right=mean), f, indent=1)
-    return path
+    return _write_beside(params_path, "hidden", dict(params, dpp_left=mean, dpp_right=mean))
 
 
 def write_ratio_off_params(params_path, ppm):
     """Beside the drive's parameter file, a copy with dpp_right ``ppm`` parts per million off the tyres' (a file
     identified before the tyres' pressure or wear moved their ratio, or identified to that precision; docs/tuning.md,
     stops 69-70), ``TAG.ratio_off.params.json``.  Returns its path."""
+    params = _read_params(params_path)
+    return _write_beside(params_path, "ratio_off", dict(params, dpp_right=params["dpp_right"] * (1.0 + 1e-6 * ppm)))
+
+
+def _read_params(params_path):
     with open(params_path) as f:
-        params = json.load(f)
-    path = params_path[:-len(".params.json")] + ".ratio_off.params.json"
+        return json.load(f)
+
+
+def _write_beside(params_path, tag, params):
+    """``params`` written beside the drive's parameter file ``TAG.params.json`` as ``TAG.<tag>.params.json``; its
+    path."""
+    path = params_path[:-len(".params.json")] + f".{tag}.params.json"
     with open(path, "w") as f:
-        json.dump(dict(params, dpp_right=params["dpp_right"] * (1.0 + 1e-6 * ppm)), f, indent=1)
+        json.dump(params, f, indent=1)
     return path
 
 

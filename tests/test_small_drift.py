@@ -17,9 +17,14 @@ from jaxmodel import rate_significance
 from jaxmodel.params import deg
 
 
-def _rate_filter(params, beta):
+def _offset_state(params, **values):
+    """A filter at its start but for ``values`` (fields of OffsetFields)."""
     fields = offset_filter.init_offset_state(params).fields()
-    return offset_filter.OffsetState.pack(fields._replace(beta=jnp.asarray(beta)))
+    return offset_filter.OffsetState.pack(fields._replace(**{k: jnp.asarray(v) for k, v in values.items()}))
+
+
+def _rate_filter(params, beta):
+    return _offset_state(params, beta=beta)
 
 
 def _calibration(params, mean_less_ratio, stretches):
@@ -71,16 +76,9 @@ def test_a_ratio_40_ppm_off_the_file_is_followed_on_the_highway(tmp_path, traced
     assert shown < 6.0
 
 
-def _following(params, beta, sigma, accepted_m):
+def _following(params, beta, sigma, accepted_m, **values):
     """A rate filter of rate ``beta`` (rad/m) and sigma ``sigma`` that has followed the compass for ``accepted_m``."""
-    fields = offset_filter.init_offset_state(params).fields()
-    return offset_filter.OffsetState.pack(fields._replace(beta=jnp.asarray(beta), p11=jnp.asarray(sigma ** 2),
-                                                          accepted_m=jnp.asarray(accepted_m)))
-
-
-def _rejecting(params, rejected_m):
-    fields = offset_filter.init_offset_state(params).fields()
-    return offset_filter.OffsetState.pack(fields._replace(rejected_m=jnp.asarray(rejected_m)))
+    return _offset_state(params, beta=beta, p11=sigma ** 2, accepted_m=accepted_m, **values)
 
 
 @pytest.mark.parametrize("beta, sigma, accepted_m, rejected_m, lags", [
@@ -94,14 +92,12 @@ def test_the_steady_filter_lags_only_a_drift_the_rate_filter_followed_since_befo
                                                                                     rejected_m, lags):
     params = jm.make_params({})
     assert bool(rate_significance.steady_lags(params, _following(params, beta, sigma, accepted_m),
-                                              _rejecting(params, rejected_m))) is lags
+                                              _offset_state(params, rejected_m=rejected_m))) is lags
 
 
 def test_accepted_m_counts_metres_with_a_compass_until_a_long_rejection_or_a_restart():
     params = jm.make_params({})
-    fs = _following(params, 0.0, 1e-5, 500.0)
-    fields = fs.fields()
-    fs = offset_filter.OffsetState.pack(fields._replace(p00=jnp.asarray(deg(1.0) ** 2)))
+    fs = _following(params, 0.0, 1e-5, 500.0, p00=deg(1.0) ** 2)
     clean, _ = offset_filter.update(params, fs, jnp.asarray(0.0), jnp.asarray(deg(3.0)), 2.0, 1.0, jnp.asarray(True),
                                     jnp.asarray(False), (0.0, 0.0))
     assert float(clean.accepted_m) == pytest.approx(502.0)
@@ -110,7 +106,7 @@ def test_accepted_m_counts_metres_with_a_compass_until_a_long_rejection_or_a_res
                                       jnp.asarray(False), jnp.asarray(False), (0.0, 0.0))
     assert float(missing.accepted_m) == pytest.approx(500.0)
     # Rejected for filter_reacquire_m: the count starts again.
-    long_rejected = offset_filter.OffsetState.pack(fs.fields()._replace(rejected_m=jnp.asarray(999.0)))
+    long_rejected = _following(params, 0.0, 1e-5, 500.0, p00=deg(1.0) ** 2, rejected_m=999.0)
     off, weight = offset_filter.update(params, long_rejected, jnp.asarray(deg(20.0)), jnp.asarray(deg(3.0)), 2.0, 1.0,
                                        jnp.asarray(True), jnp.asarray(False), (0.0, 0.0))
     assert float(off.delta) == pytest.approx(0.0, abs=deg(1.0))  # not restarted: rejected
