@@ -396,6 +396,14 @@ def stretches_rate(params, cs, track):
     return safe_div(gap, track), jnp.abs(gap) * jax.lax.rsqrt(_mean_variance(params, f.weight, f.weight2, f.m2))
 
 
+def stretches_see(params, cs, rate, track, min_z):
+    """Whether the stretches' unapplied rate (``stretches_rate``) has the sign of ``rate`` (rad/m: the same drift as
+    another filter measures it) and is beyond ``min_z`` of its sigmas (bool), and that rate (rad/m).  The stretches
+    count pulses on straight roads, independently of the compass.  track: T (m)."""
+    stretch_rate, stretch_z = stretches_rate(params, cs, track)
+    return (stretch_rate * rate > 0.0) & (stretch_z > min_z), stretch_rate
+
+
 def capture_rate(params, cs, rate, track, capture):
     """Take a drift of the wheel heading, ``rate`` (rad/m) as the rate filter measures it, into the ratio.
 

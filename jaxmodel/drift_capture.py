@@ -56,12 +56,11 @@ def corroborated(params, cs, rate_filter, track):
     unapplied mean 90-160 µrad/m at 1.3-2.8 sigmas; the steady filter lagged 17 deg; docs/tuning.md, stop 53).  Each
     test alone is weak, both together are not met on any drive of the matrix.  drifting (``rate_significance.drifting``)
     keeps out rates too small to matter.  cs: the calibration state; track: T (m)."""
-    stretch_rate, stretch_z = _cal.stretches_rate(params, cs, track)
     beta = rate_filter.beta
-    same_size = (stretch_rate * beta > 0.0) & (CORROBORATED_FACTOR * jnp.abs(stretch_rate) > jnp.abs(beta)) & (
+    seen, stretch_rate = _cal.stretches_see(params, cs, beta, track, CORROBORATED_STRETCH_Z)
+    same_size = (CORROBORATED_FACTOR * jnp.abs(stretch_rate) > jnp.abs(beta)) & (
         jnp.abs(stretch_rate) < CORROBORATED_FACTOR * jnp.abs(beta))
-    return (_beyond(rate_filter, CORROBORATED_RATE_Z) & (stretch_z > CORROBORATED_STRETCH_Z) & same_size
-            & _rate.drifting(params, rate_filter))
+    return _beyond(rate_filter, CORROBORATED_RATE_Z) & seen & same_size & _rate.drifting(params, rate_filter)
 
 
 STRETCH_GATE = 3.0

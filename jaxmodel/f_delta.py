@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from . import calibration as _cal
 from . import compass as _compass
+from . import compass_noise as _noise
 from . import compass_shift as _shift
 from . import field_tilt as _field_tilt
 from . import heading_filter as _hf
@@ -80,7 +81,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     offset = _offset.predict(_follow.calibrated_rate_params(params, calibrated), state.offset, odo["AD"], d_t, alpha,
                              odo["turn_sigma"])
     predicted_delta = offset.delta
-    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _offset.compass_sigma(params, e_c, odo["turn_rate"]))
+    sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _noise.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _rate.drifting(params, offset)
     drift_significant = _rate.drifting_significantly(params, offset)
     ln_reference, has_reference = _field_tilt.reference(params, state.field_sum, state.field_count, state.soft_field,

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 
 from . import soft_iron_field as _sfield
 from .angles import sin_polynomial
+from .compass_noise import samples_per_measurement
 from .params import deg, field_magnitude_given
 
 ROLL_SIGMA_DEG = 1.5
@@ -101,14 +102,14 @@ def roll_reaching_heading(params, tilt, has_reference):
 def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
-    metres and COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard gate).  ``b_m``:
-    |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a clean compass sample
-    while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``, without a reference
-    or where |B| is not read (``reads_field``)."""
+    metres and compass_noise.COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard
+    gate).  ``b_m``: |B| (compass units); ``tilt``: (sin(psi_m), cos(psi_m)) from ``tilt_gain``; ``ok`` (bool): a
+    clean compass sample while moving; ``ln_reference``, ``has_reference``: ``reference``.  Unchanged where not ``ok``,
+    without a reference or where |B| is not read (``reads_field``)."""
     from . import offset_filter as _of  # it reads ROLL_SIGMA_DEG and reads_field from here
 
     ok = ok & reads_field(params) & has_reference & (d_t > 0.0) & (b_m > 0.0)
     field_dev = jnp.where(ok, jnp.log(jnp.where(ok, b_m, 1.0)) - ln_reference, 0.0)
-    variance = params.filter_field_sigma ** 2 * _of.samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
+    variance = params.filter_field_sigma ** 2 * samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
     new = _of.measure(fs, [0, 0, 0, 0, -tilt[1], tilt[0]], field_dev, variance, FIELD_HARD_GATE, hard=True)
     return _of.OffsetState(jnp.where(ok, new.vector, fs.vector))

@@ -91,8 +91,7 @@ def stretches_agree(params, calibration, rate_filter, track):
     sigmas.  The two look at the tyres independently: the stretches count pulses on straight roads, the rate filter
     watches the compass against the wheels; a hill's dip error or a shifted hard iron fakes a rate in the compass
     only.  Where the seed is silent.  calibration: the calibration state; track: T (m)."""
-    stretch_rate, stretch_z = _cal.stretches_rate(params, calibration, track)
-    return (stretch_rate * rate_filter.beta > 0.0) & (stretch_z > AGREED_STRETCH_Z)
+    return _cal.stretches_see(params, calibration, rate_filter.beta, track, AGREED_STRETCH_Z)[0]
 
 
 def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, calibrated=0.0, agreed=False):

@@ -66,7 +66,7 @@ Steps of claim 1, per sample:
    kf_white_sigma_deg^2 + (kf_compass_ec_weight E_C)^2) * max(1, kf_compass_corr_m / |AD|):
    the white compass noise is counted once per kf_compass_corr_m of road, so a stationary
    vehicle gains no information from repeating the same reading, and at most once per
-   offset_filter.COMPASS_CORR_S seconds (a log sampled faster than 10 Hz); position fixes (2-D,
+   compass_noise.COMPASS_CORR_S seconds (a log sampled faster than 10 Hz); position fixes (2-D,
    H = [[0, 0, 0, 1, 0, -1, 0], [0, 0, 0, 0, 1, 0, -1]], R = kf_fix_sigma_m^2 I).  Joseph form,
    then symmetrized.
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
@@ -91,7 +91,8 @@ import numpy as np
 from . import fix_alignment as _align
 from .angles import safe_div, wrap
 from .fix_alignment import AlignmentState, init_alignment_state
-from .offset_filter import UNINITIALIZED_BOUND, lost, lost_distance, samples_per_measurement, supported_bound
+from .compass_noise import samples_per_measurement
+from .offset_filter import UNINITIALIZED_BOUND, lost, lost_distance, supported_bound
 from .packed import computed_once
 from .params import deg
 from .rate_significance import drifting_significantly, large_drift
@@ -284,7 +285,7 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
 
 def _samples_per_measurement(params, distance, dt):
     """How many samples make one independent course measurement: one per kf_compass_corr_m of road and at most
-    one per offset_filter.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time).
+    one per compass_noise.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time).
     10-Hz samples (0.096-0.104 s apart) are left as they were; a 50-Hz log of the same highway drive (0.6 m per
     sample against the 10-Hz log's 3 m) no longer counts 1.4 times the compass information."""
     return jnp.minimum(samples_per_measurement(params.kf_compass_corr_m, distance, dt, standing=1e9), 1e9)

@@ -20,7 +20,7 @@ We filter exactly that model, per travelled metre:
 with process noise ``filter_offset_psd`` per metre plus (``filter_turn_sigma`` alpha)^2 per turn on
 the offset, ``filter_rate_psd`` per metre on the rate, and a compass noise of
 ``filter_compass_sigma_deg`` (plus ``filter_ec_weight`` E_C, FIG. 8C, and ``filter_compass_lag_s`` times the turn
-rate: ``compass_sigma``) counted once per
+rate: ``compass_noise.compass_sigma``) counted once per
 ``filter_compass_corr_m`` metres, divided by the seed's factor F (FIG. 8E: F > 1 trusts the compass
 more), ``filter_scale_psd`` per radian turned on k.  It is a six-state Kalman filter; with beta,
 k, g and r held at 0 and a fixed gain it is the seed's first-order filter.
@@ -104,6 +104,7 @@ from .angles import safe_div, wrap
 from .packed import computed_once, packed_state
 from .params import deg, field_magnitude_given
 from .rate_significance import large_drift
+from .compass_noise import samples_per_measurement
 from .field_tilt import ROLL_SIGMA_DEG, reads_field
 from .unrolled import covariance, dot, gated_scalar_update, projected, scaled, upper, upper_indices
 
@@ -345,9 +346,10 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     ``lost`` by its own running disagreement restarts from the compass after filter_reacquire_lost_m.
     ``d_lost`` (m, ``lost_distance``; default d_t) is what this sample counts towards the restart of a lost filter.
     ``dt`` (s, the sample's time step; default: not counted in time): the white noise is counted at most once per
-    COMPASS_CORR_S seconds too.  ``young`` (bool, ``young``): the start's anchor is young; a compass that disagrees
-    steadily for START_REJECT_FRACTION x filter_reacquire_m then restarts the filter (unless a significant drift
-    explains it).  Any filter restarts after filter_reacquire_m of a steady disagreement beyond FAR_RESTART_DEG.
+    compass_noise.COMPASS_CORR_S seconds too.  ``young`` (bool, ``young``): the start's anchor is young; a compass
+    that disagrees steadily for START_REJECT_FRACTION x filter_reacquire_m then restarts the filter (unless a
+    significant drift explains it).  Any filter restarts after filter_reacquire_m of a steady disagreement beyond
+    FAR_RESTART_DEG.
     Returns (new state, accepted weight in [0, 1]: 1 a clean sample, near 0 a rejected one), and with
     ``with_lost_restart`` a third item: whether the filter restarted as lost (bool).
     """
@@ -366,7 +368,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     gate2 = params.filter_gate_sigma ** 2
     z2 = disturbance ** 2 / (p_hh + s2)
     # Information counted once per filter_compass_corr_m metres (no gain while standing still) and at most once per
-    # COMPASS_CORR_S seconds: how many such samples make one compass measurement.
+    # compass_noise.COMPASS_CORR_S seconds: how many such samples make one compass measurement.
     per_measurement = samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
@@ -477,11 +479,6 @@ def measure_state(fs, name, value, variance, gate):
     return measure(fs, [1 if state == name else 0 for state in STATES], value, variance, gate)
 
 
-COMPASS_CORR_S = 0.09
-"""The compass's white noise is counted at most once per this many seconds (``update``'s ``dt``): the filter's
-constants were fitted on 10-Hz logs (samples 0.096-0.104 s apart, which this leaves as they were), and a 50-Hz log
-of the same drive must not give the filter five times the compass information (its errors are not white at 50 Hz:
-stop 35 measured 0.47 -> 0.79 deg on highway/baseline/101 logged at 50 Hz without this, 0.68 with it)."""
 MATURE_STEADY_DEG = START_WANDER_DEG
 """An anchored filter (not ``young``) is lost only to a compass whose disagreement wanders less than this (RMS, deg):
 as little as a clean compass's noise.  Its heading has been confirmed by a km of compass; what turns the field by
@@ -512,16 +509,6 @@ made the disagreement "steady" and restarted the steady filter 49 deg off (indep
 docs/tuning.md stop 51)."""
 
 
-def samples_per_measurement(corr_m, distance_m, dt, standing=1e12):
-    """How many samples make one independent compass measurement: one per ``corr_m`` metres of |distance_m|
-    (``standing`` where it is zero: no information from repeating a reading) and at most one per COMPASS_CORR_S
-    seconds of ``dt`` (s; None: not counted in time).  Shared by this filter and the Kalman mode."""
-    per = jnp.maximum(1.0, safe_div(corr_m, jnp.abs(distance_m), eps=1e-9, fallback=standing))
-    if dt is not None:
-        per = jnp.maximum(per, safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
-    return per
-
-
 def lost_distance(d_t, dt):
     """Metres counted towards a lost filter's restart for one sample of |AD| = d_t (m) over dt (s): d_t, but at
     least LOST_MIN_SPEED x dt.  A car leaving at walking pace the garage it started in covers
@@ -543,19 +530,6 @@ def lost(params, disturbance):
     steel turned the first compass samples by 60-150 deg, was 16-90 deg off for the whole drive (docs/tuning.md).
     The field magnitude is no guide here: B_E is learned from those first samples too."""
     return jnp.abs(disturbance) > deg(params.filter_reacquire_large_deg)
-
-
-def compass_sigma(params, e_c, turn_rate):
-    """The compass's white noise sigma (rad) for one sample: ``filter_compass_sigma_deg``, ``filter_ec_weight``
-    E_C (FIG. 8C) and ``filter_compass_lag_s`` times the wheels' turn rate (rad/s), added in quadrature.
-
-    Where the seed is silent: a magnetometer that filters its readings lags in turns by its time constant times
-    the turn rate (0.7 s and 20 deg/s: 14 deg), and in a turn the car rolls, so the turns' compass samples
-    are the least trustworthy; the wheels carry the heading through a turn.  0.5 s was chosen on the tuning
-    seeds of the matrix (no lag there: 0.3-0.7 s equal, geometric mean 0.979 -> 0.965 deg; docs/tuning.md, stop 29).
-    """
-    return jnp.sqrt(deg(params.filter_compass_sigma_deg) ** 2 + (params.filter_ec_weight * e_c) ** 2
-                    + (params.filter_compass_lag_s * turn_rate) ** 2)
 
 
 def shift_rate(fs, change_per_m):

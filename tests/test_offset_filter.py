@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import jaxmodel as jm
+from jaxmodel import compass_noise
 from jaxmodel import field_tilt as ft
 from jaxmodel import soft_iron as soft
 from jaxmodel import soft_iron_field as sif
@@ -240,11 +241,11 @@ def test_compass_sigma_grows_with_the_turn_rate_by_filter_compass_lag_s():
     and 20 deg/s a turn adds 10 deg in quadrature; straight on, E_C alone adds to the white noise."""
     p = jm.make_params({"filter_compass_sigma_deg": 3.0, "filter_ec_weight": 0.1, "filter_compass_lag_s": 0.5})
     turn = np.radians(20.0)
-    assert float(of.compass_sigma(p, 0.0, turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
-    assert float(of.compass_sigma(p, 0.0, -turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
-    assert float(of.compass_sigma(p, np.radians(20.0), 0.0)) == pytest.approx(np.radians(np.hypot(3.0, 2.0)), rel=1e-12)
+    assert float(compass_noise.compass_sigma(p, 0.0, turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
+    assert float(compass_noise.compass_sigma(p, 0.0, -turn)) == pytest.approx(np.radians(np.hypot(3.0, 10.0)), rel=1e-12)
+    assert float(compass_noise.compass_sigma(p, np.radians(20.0), 0.0)) == pytest.approx(np.radians(np.hypot(3.0, 2.0)), rel=1e-12)
     off = p._replace(filter_compass_lag_s=0.0)
-    assert float(of.compass_sigma(off, 0.0, turn)) == pytest.approx(np.radians(3.0), rel=1e-12)
+    assert float(compass_noise.compass_sigma(off, 0.0, turn)) == pytest.approx(np.radians(3.0), rel=1e-12)
 
 
 def _rate_filter(params, beta, sigma_beta, delta_deg):

@@ -43,7 +43,7 @@ def test_a_parking_drive_logged_at_50_hz_is_estimated_as_at_10_hz(monkeypatch, r
     """Tight turns near eq. (14)'s maximum curvature at 2 pulses per sample: pairing each sample's dD with a
     curvature window that held its own quantization put the wheel heading 14 deg RMS off at 50 Hz (0.97 at 10 Hz)
     and the default 3.65 deg; eq. (14) per interval of travel (jaxmodel.odometer.odometer) and the compass counted
-    per time (offset_filter.COMPASS_CORR_S) keep both rates alike (measured 1.05 / 1.31 and 0.52 / 0.65 deg)."""
+    per time (compass_noise.COMPASS_CORR_S) keep both rates alike (measured 1.05 / 1.31 and 0.52 / 0.65 deg)."""
     drive = _drive_at(monkeypatch, rate_hz, "parking/baseline/101")
     assert abs(np.median(np.diff(drive.columns["time_s"])) - 1.0 / rate_hz) < 1e-3
     err, t, ok = _errors_deg(drive, ev.MODE_CONFIGS["odometer"])
