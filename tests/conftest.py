@@ -84,16 +84,18 @@ def traced_constants():
     return patched
 
 
-HEAVY_FILES_FIRST = ("test_fleet.py", "test_scenarios.py", "test_kalman.py", "test_model.py", "test_fmu.py",
-                     "test_calibration.py", "test_identify.py", "test_identify_fixes.py", "test_identify_from_zero.py",
-                     "test_fmu_native.py", "test_estimate_cli.py", "test_identify_recovery.py", "test_importers.py",
-                     "test_demo.py", "test_hard_iron.py", "test_shifted_hard_iron.py", "test_fmu_cosim.py")
-"""Files that take one and a half to eight minutes each, longest first (``--durations=0`` summed per file, stop 56:
-test_fleet.py 465 s, test_scenarios.py 262 s before test_shifted_hard_iron.py left it, test_kalman.py 253 s), run
-first.  xdist's ``--dist loadfile`` hands the files out in the order collected, one at a time as a worker frees up: in
-alphabetical order the long files came last and one worker ran them alone while the other sat idle.  test_fmu.py comes
-before the two other FMU files so that the FMUs it builds for the run are there when they ask
-(``test_fmu.built_fmus``)."""
+HEAVY_FILES_FIRST = ("test_kalman.py", "test_identify_fixes.py", "test_identify_recovery.py", "test_identify.py",
+                     "test_hard_iron.py", "test_fleet.py", "test_scenarios.py", "test_importers.py", "test_fmu.py",
+                     "test_demo.py", "test_model.py", "test_fix_alignment.py", "test_fmu_native.py",
+                     "test_calibration.py", "test_sample_rate.py", "test_soft_iron.py", "test_shifted_hard_iron.py",
+                     "test_robustness.py", "test_identify_from_zero.py", "test_readme.py", "test_fmu_cosim.py")
+"""Files that take one to five minutes each, longest first (``--durations=120`` summed per file, stop 72: test_kalman.py
+293 s, test_identify_fixes.py 265 s, test_identify_recovery.py 234 s, ... test_readme.py 62 s), run first.  xdist's
+``--dist loadfile`` hands the files out one at a time as a worker frees up; longest first, the two workers end
+together.  In alphabetical order the long files came last and one worker ran them alone while the other sat idle; and
+pytest-xdist 3.6 on reorders the files by their number of tests unless ``--no-loadscope-reorder`` (``addopts``), which
+put the heaviest files (few tests each: identify recovery 3, the demo 1) last again.  test_fmu.py comes before the two
+other FMU files so that the FMUs it builds for the run are there when they ask (``test_fmu.built_fmus``)."""
 
 
 def pytest_collection_modifyitems(config, items):
