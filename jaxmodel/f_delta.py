@@ -117,8 +117,10 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts
     # the hold.  Its straight stretches seeing the drift too let a small one be shown.
     agreed = captures_drift(config) & _follow.stretches_agree(params, state.calibration, offset, odo["track"])
+    offset = _follow.kept_sign(offset, d_t, absolute_ok & ~initializing)
+    persistent = _follow.persistent_drift(offset, steady)
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
-                                   calibrated=calibrated, agreed=agreed)
+                                   calibrated=calibrated, agreed=agreed, persistent=persistent)
     f_delta = shown.delta
 
     field_sum, field_count = state.field_sum, state.field_count

@@ -94,7 +94,64 @@ def stretches_agree(params, calibration, rate_filter, track):
     return _cal.stretches_see(params, calibration, rate_filter.beta, track, AGREED_STRETCH_Z)[0]
 
 
-def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, calibrated=0.0, agreed=False):
+PERSIST_SIGN_Z = 1.0
+"""``kept_sign`` counts metres while the rate filter's rate is beyond this many of its sigmas with one sign."""
+PERSIST_FRACTION = 0.6
+"""A drift persists when its rate has kept its sign for this fraction of the metres the rate filter followed the
+compass (``persistent_drift``)."""
+PERSIST_MIN_M = 3000.0
+"""... and the rate filter has followed the compass this many metres more than the steady filter has rejected it."""
+PERSIST_MAX_RATE = 4e-5
+"""A persistent drift is small (rad/m): a ratio up to 60 ppm off the tyres'.  Its rate, and the largest significant
+rate the rate filter has had since it started (``peak_rate``), stay under this: a hill's or a shifted hard iron's fake
+rate starts large (-125 µrad/m on highway/hills/105) and decays."""
+PEAK_Z = 1.5
+"""``peak_rate`` records rates beyond this many of their sigmas."""
+PERSIST_Z = 1.75
+"""While a drift persists the heading shows the rate filter from this significance of its rate on, without the show
+rate (``follow``)."""
+_PEAK_ONEHOT = _of.one_hot("peak_rate")
+_SIGN_ONEHOT = _of.one_hot("sign_m")
+
+
+def kept_sign(rate_filter, d_t, absolute_ok):
+    """The rate filter with its two counts of a persistent drift brought up to this sample (``persistent_drift``).
+
+    ``sign_m`` (m, signed like the rate): metres of absolute headings (``absolute_ok``, bool) during which the rate has
+    stayed beyond PERSIST_SIGN_Z of its sigmas with one sign; 0 as soon as it falls within them.  ``peak_rate``
+    (rad/m): the largest |rate| the filter has had beyond PEAK_Z of its sigmas.  Both start at 0 when the filter
+    (re)starts; ``sign_m`` also when the steady filter has rejected the compass for filter_reacquire_m
+    (``offset_filter.update``, like ``accepted_m``).  d_t: this sample's distance (m).
+    """
+    f = rate_filter.fields()
+    z = f.beta / jnp.sqrt(jnp.maximum(f.p11, 1e-300))
+    step = jnp.where(absolute_ok, d_t, 0.0)
+    kept = jnp.where(z > PERSIST_SIGN_Z, jnp.maximum(f.sign_m, 0.0) + step,
+                     jnp.where(z < -PERSIST_SIGN_Z, jnp.minimum(f.sign_m, 0.0) - step, 0.0))
+    peak = jnp.maximum(f.peak_rate, jnp.where(jnp.abs(z) > PEAK_Z, jnp.abs(f.beta), 0.0))
+    return _of.OffsetState(rate_filter.vector + (kept - f.sign_m)[..., None] * _SIGN_ONEHOT
+                           + (peak - f.peak_rate)[..., None] * _PEAK_ONEHOT)
+
+
+def persistent_drift(rate_filter, steady):
+    """Whether the wheels drift slowly and for good, as a ratio a few tens of ppm off the tyres' makes them (bool).
+
+    The rate filter's rate has kept its sign (``kept_sign``) over the last PERSIST_FRACTION of the metres it has
+    followed the compass (``accepted_m``: at least PERSIST_MIN_M more than the steady filter has rejected it), and both
+    that rate and the largest it ever had (``peak_rate``) are under PERSIST_MAX_RATE.  A tyre's drift is there from the
+    first metre and stays; the compass's fake rates (dip on a hill, a hard iron that shifted) come large and go.  Where
+    the seeds are silent.  Without this the heading shows a drift under filter_follow_show_rate only where the straight
+    stretches agree (``stretches_agree``); on the independent simulator's highway drives with the file's ratio 30 ppm
+    off (19 µrad/m) the steady filter lagged it by 3-8 deg (docs/tuning.md, stop 74).
+    """
+    f = rate_filter.fields()
+    return ((f.accepted_m >= PERSIST_MIN_M) & (f.accepted_m > steady.rejected_m + PERSIST_MIN_M)
+            & (f.sign_m * f.beta > 0.0) & (jnp.abs(f.sign_m) >= PERSIST_FRACTION * f.accepted_m)
+            & (jnp.abs(f.beta) <= PERSIST_MAX_RATE) & (f.peak_rate <= PERSIST_MAX_RATE))
+
+
+def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, calibrated=0.0, agreed=False,
+           persistent=False):
     """The steady F-DELTA and the heading it shows: drawn to the rate filter while the wheels drift.
 
     The rate filter (offset, rate, coloured error) follows a drifting wheel heading (a tyre mismatch
@@ -118,6 +175,12 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     file identified to 4e-5; 25 µrad/m of drift) left the independent simulator's highway drives 8.8 deg off with a
     clean compass, the rate filter knowing the drift (20 +- 9 µrad/m after 15 min) and the steady filter lagging it by
     5-8 deg (docs/tuning.md, stop 66).
+
+    ``persistent`` (``persistent_drift``): the rate filter's rate is a small drift that has persisted.  The heading
+    then shows the rate filter from PERSIST_Z of its rate on, without the show rate.  On the independent simulator's
+    diagnosis drives (seeds 1-4 and 28-33) with the file's right dpp 30 ppm high / low, geometric mean 1.956 / 2.127
+    deg -> 1.889 / 1.972 (highway 4.86 / 4.72 -> 4.22 / 3.49), the exact file and the matrix's seeds 101-106 unchanged
+    (docs/tuning.md, stop 74).
 
     ``calibrated`` (``calibration.corrected``, in [0, 1]): the calibration has moved the ratio from the parameters'.
     The show rate is then CALIBRATED_SHOW_FRACTION of filter_follow_show_rate: the calibrated ratio's residual of
@@ -150,6 +213,7 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     # Unless the stretches see the drift too: the compass alone does not fake it there.
     w_rate = jnp.where(agreed, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, AGREED_SIGNIFICANCE)),
                        w_rate)
+    w_rate = jnp.where(persistent, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, PERSIST_Z)), w_rate)
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))

@@ -168,6 +168,8 @@ class OffsetFields(NamedTuple):
     wander: jnp.ndarray
     lost_m: jnp.ndarray
     accepted_m: jnp.ndarray
+    sign_m: jnp.ndarray
+    peak_rate: jnp.ndarray
 
 
 # One float64 vector, and the 5x5 algebra unrolled into scalars at trace time (unrolled.py): inside the vmapped scan
@@ -204,7 +206,7 @@ def init_offset_state(params):
                                          since_absolute=z, rejected_m=z, since_drift=z + NEVER_DRIFTED_M,
                                          # unsteady until LOST_STEADY_M of compass samples said otherwise
                                          level=z, wander=z + deg(LOST_STEADY_DEG) ** 2 * 4.0, lost_m=z,
-                                         accepted_m=z))
+                                         accepted_m=z, sign_m=z, peak_rate=z))
 
 
 ROLL_M = 6000.0
@@ -284,7 +286,8 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, r=phi_r * f.r, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,
-        since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m, accepted_m=f.accepted_m))
+        since_drift=f.since_drift, level=f.level, wander=f.wander, lost_m=f.lost_m, accepted_m=f.accepted_m,
+        sign_m=f.sign_m, peak_rate=f.peak_rate))
 
 
 START_ANCHOR_FRACTION = 1.0
@@ -413,7 +416,8 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
         wrap(new_x[0]), *new_x[1:], **new_P,
         disturbance=disturbance - dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m,
-        accepted_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.accepted_m + d_t))
+        accepted_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.accepted_m + d_t),
+        sign_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.sign_m), peak_rate=f.peak_rate)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran

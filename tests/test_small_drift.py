@@ -120,11 +120,74 @@ def test_a_ratio_30_ppm_off_the_file_does_not_lock_the_steady_filter_out(tmp_pat
     """Highway seed 30, every feature on, the tyres' dpp given but the right one 3e-5 high: 19 µrad/m of drift, under
     ``drifting`` (2 deg per km) and the show rate.  The steady filter lagged it by 2-3 deg, hardened against the compass
     and never took it back: 23 deg off after 27 km, 12.9 deg RMSE.  Not hardened while it lags (``steady_lags``): 4.1
-    deg (the rate filter alone 1.4; the file's ratio exact: 0.87)."""
+    deg (the rate filter alone 1.4; the file's ratio exact: 0.87).  Both without the persistent drift shown
+    (stop 74), which takes the heading to the rate filter on this drive either way (2.46 deg)."""
     path, params = _highway_with_ratio_off(tmp_path, 30, 3e-5)
-    lagging = _rmse(path, params)
-    with traced_constants((rate_significance, "LAG_Z", np.inf)):
+    with traced_constants((follow, "PERSIST_Z", np.inf)):
+        lagging = _rmse(path, params)
+    with traced_constants((follow, "PERSIST_Z", np.inf), (rate_significance, "LAG_Z", np.inf)):
         locked_out = _rmse(path, params)
     assert locked_out > 8.0
     assert lagging < 0.5 * locked_out
     assert lagging < 6.0
+
+
+def test_kept_sign_counts_metres_of_one_sign_beyond_its_sigmas_and_the_peak_rate():
+    params = jm.make_params({})
+    # 2 sigmas: counted, signed like the rate, only with an absolute heading.
+    rf = _following(params, 20e-6, 10e-6, 5000.0, sign_m=100.0)
+    assert float(follow.kept_sign(rf, 2.0, jnp.asarray(True)).sign_m) == pytest.approx(102.0)
+    assert float(follow.kept_sign(rf, 2.0, jnp.asarray(False)).sign_m) == pytest.approx(100.0)
+    # The sign turns: the count starts again, negative.
+    down = _following(params, -20e-6, 10e-6, 5000.0, sign_m=100.0)
+    assert float(follow.kept_sign(down, 2.0, jnp.asarray(True)).sign_m) == pytest.approx(-2.0)
+    # Within PERSIST_SIGN_Z sigmas: 0.
+    weak = _following(params, 8e-6, 10e-6, 5000.0, sign_m=100.0)
+    assert float(follow.kept_sign(weak, 2.0, jnp.asarray(True)).sign_m) == 0.0
+    # The peak: the largest |rate| beyond PEAK_Z sigmas, kept when the rate falls.
+    hill = follow.kept_sign(_following(params, -125e-6, 40e-6, 500.0), 2.0, jnp.asarray(True))
+    assert float(hill.peak_rate) == pytest.approx(125e-6)
+    later = follow.kept_sign(_following(params, -20e-6, 10e-6, 5000.0, peak_rate=hill.peak_rate), 2.0,
+                             jnp.asarray(True))
+    assert float(later.peak_rate) == pytest.approx(125e-6)
+    # 1.2 sigmas: under PEAK_Z, not recorded.
+    assert float(follow.kept_sign(_following(params, 12e-6, 10e-6, 500.0), 2.0, jnp.asarray(True)).peak_rate) == 0.0
+
+
+@pytest.mark.parametrize("beta, accepted_m, sign_m, peak_rate, rejected_m, persists", [
+    (19e-6, 20000.0, 15000.0, 25e-6, 0.0, True),      # a ratio 30 ppm off, followed all along
+    (-19e-6, 20000.0, -15000.0, 25e-6, 0.0, True),    # either sign
+    (19e-6, 20000.0, 10000.0, 25e-6, 0.0, False),     # its sign kept for half the metres only
+    (19e-6, 20000.0, -15000.0, 25e-6, 0.0, False),    # the count's sign is not the rate's
+    (19e-6, 2500.0, 2500.0, 25e-6, 0.0, False),       # under PERSIST_MIN_M followed
+    (19e-6, 20000.0, 15000.0, 25e-6, 18000.0, False),  # the steady filter rejected the compass nearly as long
+    (19e-6, 20000.0, 15000.0, 125e-6, 0.0, False),    # once large: a hill's fake rate decaying
+    (50e-6, 20000.0, 15000.0, 50e-6, 0.0, False),     # over PERSIST_MAX_RATE: the calibration's and the hold's
+])
+def test_a_persistent_drift_is_small_of_one_sign_and_followed_for_long(beta, accepted_m, sign_m, peak_rate,
+                                                                       rejected_m, persists):
+    params = jm.make_params({})
+    rf = _following(params, beta, 9e-6, accepted_m, sign_m=sign_m, peak_rate=peak_rate)
+    assert bool(follow.persistent_drift(rf, _offset_state(params, rejected_m=rejected_m))) is persists
+
+
+def test_a_persistent_drift_shows_the_rate_filter_under_the_show_rate():
+    params = jm.make_params({})
+    steady = _offset_state(params, delta=0.0, since_drift=1e6)
+    rf = _following(params, 25e-6, 9e-6, 20000.0, delta=deg(4.0))  # z 2.8, a quarter of filter_follow_show_rate
+    _, lagging = follow.follow(params, steady, rf, jnp.asarray(False), 2.0, hold_on_drift=False)
+    _, shown = follow.follow(params, steady, rf, jnp.asarray(False), 2.0, hold_on_drift=False, persistent=True)
+    assert abs(float(lagging.delta)) < deg(0.5)
+    assert float(shown.delta) == pytest.approx(deg(4.0), abs=deg(0.1))
+
+
+@pytest.mark.slow
+def test_a_ratio_30_ppm_low_is_followed_on_the_highway_once_it_persists(tmp_path, traced_constants):
+    """Highway seed 31, every feature on, the right dpp 3e-5 low: -19 µrad/m, under the show rate, and the straight
+    stretches do not agree.  The steady filter lagged it: 7.36 deg RMSE.  Shown once it persisted: 3.43."""
+    path, params = _highway_with_ratio_off(tmp_path, 31, -3e-5)
+    shown = _rmse(path, params)
+    with traced_constants((follow, "PERSIST_Z", np.inf)):
+        lagged = _rmse(path, params)
+    assert lagged > 6.0
+    assert shown < 0.6 * lagged
