@@ -120,8 +120,11 @@ def kept_sign(rate_filter, d_t, absolute_ok):
     ``sign_m`` (m, signed like the rate): metres of absolute headings (``absolute_ok``, bool) during which the rate has
     stayed beyond PERSIST_SIGN_Z of its sigmas with one sign; 0 as soon as it falls within them.  ``peak_rate``
     (rad/m): the largest |rate| the filter has had beyond PEAK_Z of its sigmas.  Both start at 0 when the filter
-    (re)starts; ``sign_m`` also when the steady filter has rejected the compass for filter_reacquire_m
-    (``offset_filter.update``, like ``accepted_m``).  d_t: this sample's distance (m).
+    (re)starts; ``sign_m`` also when the rate filter itself has rejected the compass for filter_reacquire_m
+    (``offset_filter.update``, like ``accepted_m``).  A capture of the drift into the ratio does not reset
+    ``peak_rate``: a captured mismatch's rate (over filter_follow_hold_rate) keeps ``persistent_drift`` off for the
+    rest of the drive, and the residual the calibration leaves is shown by its own lower show rate instead
+    (``follow``'s ``calibrated``).  d_t: this sample's distance (m).
     """
     f = rate_filter.fields()
     z = f.beta / jnp.sqrt(jnp.maximum(f.p11, 1e-300))
@@ -137,15 +140,15 @@ def persistent_drift(rate_filter, steady):
     """Whether the wheels drift slowly and for good, as a ratio a few tens of ppm off the tyres' makes them (bool).
 
     The rate filter's rate has kept its sign (``kept_sign``) over the last PERSIST_FRACTION of the metres it has
-    followed the compass (``accepted_m``: at least PERSIST_MIN_M more than the steady filter has rejected it), and both
-    that rate and the largest it ever had (``peak_rate``) are under PERSIST_MAX_RATE.  A tyre's drift is there from the
-    first metre and stays; the compass's fake rates (dip on a hill, a hard iron that shifted) come large and go.  Where
-    the seeds are silent.  Without this the heading shows a drift under filter_follow_show_rate only where the straight
-    stretches agree (``stretches_agree``); on the independent simulator's highway drives with the file's ratio 30 ppm
-    off (19 µrad/m) the steady filter lagged it by 3-8 deg (docs/tuning.md, stop 74).
+    followed the compass (``accepted_m``: at least PERSIST_MIN_M more than the steady filter has rejected it), and
+    both that rate and the largest it ever had (``peak_rate``) are under PERSIST_MAX_RATE.  A tyre's drift is there
+    from the first metre and stays; the compass's fake rates (dip on a hill, a hard iron that shifted) come large and
+    go.  Where the seeds are silent.  Without this the heading shows a drift under filter_follow_show_rate only where
+    the straight stretches agree (``stretches_agree``); on the independent simulator's highway drives with the file's
+    ratio 30 ppm off (19 µrad/m) the steady filter lagged it by 2-8 deg (docs/tuning.md, stop 74).
     """
     f = rate_filter.fields()
-    return ((f.accepted_m >= PERSIST_MIN_M) & (f.accepted_m > steady.rejected_m + PERSIST_MIN_M)
+    return ((f.accepted_m > steady.rejected_m + PERSIST_MIN_M)
             & (f.sign_m * f.beta > 0.0) & (jnp.abs(f.sign_m) >= PERSIST_FRACTION * f.accepted_m)
             & (jnp.abs(f.beta) <= PERSIST_MAX_RATE) & (f.peak_rate <= PERSIST_MAX_RATE))
 

@@ -131,7 +131,9 @@ class OffsetFields(NamedTuple):
     ``level`` and ``wander`` the innovation's mean (rad) and mean square about it (rad^2) over
     LOST_STEADY_M (how steadily the compass disagrees); ``lost_m`` metres driven ``lost`` since the compass was last
     accepted; ``accepted_m`` metres driven with absolute headings since the filter last (re)started or had rejected the
-    compass for filter_reacquire_m (how long its rate has followed the compass: ``rate_significance.steady_lags``)."""
+    compass for filter_reacquire_m (how long its rate has followed the compass: ``rate_significance.steady_lags``);
+    ``sign_m`` (m, signed like the rate) and ``peak_rate`` (rad/m) how long the rate has kept its sign and the largest
+    significant rate since the filter started (``follow.kept_sign``; read only in the rate filter)."""
 
     delta: jnp.ndarray
     beta: jnp.ndarray

@@ -111,6 +111,14 @@ def test_accepted_m_counts_metres_with_a_compass_until_a_long_rejection_or_a_res
                                        jnp.asarray(True), jnp.asarray(False), (0.0, 0.0))
     assert float(off.delta) == pytest.approx(0.0, abs=deg(1.0))  # not restarted: rejected
     assert float(weight) < 0.5 and float(off.accepted_m) == 0.0
+    # The sign's count with it; the peak stays (a hill's early fake rate must not be forgotten).
+    kept = _following(params, 0.0, 1e-5, 500.0, p00=deg(1.0) ** 2, rejected_m=999.0, sign_m=400.0, peak_rate=7e-5)
+    off, _ = offset_filter.update(params, kept, jnp.asarray(deg(20.0)), jnp.asarray(deg(3.0)), 2.0, 1.0,
+                                  jnp.asarray(True), jnp.asarray(False), (0.0, 0.0))
+    assert float(off.sign_m) == 0.0 and float(off.peak_rate) == pytest.approx(7e-5)
+    short = _following(params, 0.0, 1e-5, 500.0, p00=deg(1.0) ** 2, sign_m=400.0)
+    assert float(offset_filter.update(params, short, jnp.asarray(0.0), jnp.asarray(deg(3.0)), 2.0, 1.0,
+                                      jnp.asarray(True), jnp.asarray(False), (0.0, 0.0))[0].sign_m) == 400.0
     # A restart starts it again too.
     assert float(offset_filter.restarted_like(params, fs, offset_filter.start(params)).accepted_m) == 0.0
 
@@ -163,11 +171,13 @@ def test_kept_sign_counts_metres_of_one_sign_beyond_its_sigmas_and_the_peak_rate
     (19e-6, 20000.0, 15000.0, 25e-6, 18000.0, False),  # the steady filter rejected the compass nearly as long
     (19e-6, 20000.0, 15000.0, 125e-6, 0.0, False),    # once large: a hill's fake rate decaying
     (50e-6, 20000.0, 15000.0, 50e-6, 0.0, False),     # over PERSIST_MAX_RATE: the calibration's and the hold's
+    (50e-6, 20000.0, 15000.0, 25e-6, 0.0, False),     # the rate over it at 1.4 sigmas, under PEAK_Z (sigma below)
 ])
 def test_a_persistent_drift_is_small_of_one_sign_and_followed_for_long(beta, accepted_m, sign_m, peak_rate,
                                                                        rejected_m, persists):
     params = jm.make_params({})
-    rf = _following(params, beta, 9e-6, accepted_m, sign_m=sign_m, peak_rate=peak_rate)
+    rf = _following(params, beta, 9e-6 if abs(beta) < 4e-5 else 36e-6, accepted_m, sign_m=sign_m,
+                    peak_rate=peak_rate)
     assert bool(follow.persistent_drift(rf, _offset_state(params, rejected_m=rejected_m))) is persists
 
 
