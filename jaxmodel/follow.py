@@ -127,13 +127,12 @@ def kept_sign(rate_filter, d_t, absolute_ok):
     (``follow``'s ``calibrated``).  d_t: this sample's distance (m).
     """
     f = rate_filter.fields()
-    z = f.beta / jnp.sqrt(jnp.maximum(f.p11, 1e-300))
+    z = _rate.rate_z(f)
     step = jnp.where(absolute_ok, d_t, 0.0)
     kept = jnp.where(z > PERSIST_SIGN_Z, jnp.maximum(f.sign_m, 0.0) + step,
                      jnp.where(z < -PERSIST_SIGN_Z, jnp.minimum(f.sign_m, 0.0) - step, 0.0))
     peak = jnp.maximum(f.peak_rate, jnp.where(jnp.abs(z) > PEAK_Z, jnp.abs(f.beta), 0.0))
-    return _of.OffsetState(rate_filter.vector + (kept - f.sign_m)[..., None] * _SIGN_ONEHOT
-                           + (peak - f.peak_rate)[..., None] * _PEAK_ONEHOT)
+    return _of.added(_of.added(rate_filter, _SIGN_ONEHOT, kept - f.sign_m), _PEAK_ONEHOT, peak - f.peak_rate)
 
 
 def persistent_drift(rate_filter, steady):
@@ -148,7 +147,7 @@ def persistent_drift(rate_filter, steady):
     ratio 30 ppm off (19 µrad/m) the steady filter lagged it by 2-8 deg (docs/tuning.md, stop 74).
     """
     f = rate_filter.fields()
-    return ((f.accepted_m > steady.rejected_m + PERSIST_MIN_M)
+    return (_rate.followed_since_before(f, steady, PERSIST_MIN_M)
             & (f.sign_m * f.beta > 0.0) & (jnp.abs(f.sign_m) >= PERSIST_FRACTION * f.accepted_m)
             & (jnp.abs(f.beta) <= PERSIST_MAX_RATE) & (f.peak_rate <= PERSIST_MAX_RATE))
 
@@ -213,10 +212,10 @@ def follow(params, steady, rate_filter, initializing, d_t, hold_on_drift=True, c
     # A significant but small rate is not shown: slow compass errors on hills fake one for kilometres.
     show_rate = params.filter_follow_show_rate * (1.0 - (1.0 - CALIBRATED_SHOW_FRACTION) * calibrated)
     w_rate = w_rate * jax.nn.sigmoid(_rate.FOLLOW_STEEPNESS * (jnp.abs(f.beta) - show_rate) / (show_rate + 1e-6))
-    # Unless the stretches see the drift too: the compass alone does not fake it there.
-    w_rate = jnp.where(agreed, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, AGREED_SIGNIFICANCE)),
-                       w_rate)
-    w_rate = jnp.where(persistent, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, PERSIST_Z)), w_rate)
+    # Unless the stretches see the drift too (the compass alone does not fake it there), or it persists.
+    for shown_small, significance in ((agreed, AGREED_SIGNIFICANCE), (persistent, PERSIST_Z)):
+        w_rate = jnp.where(shown_small, jnp.maximum(w_rate, _rate.follow_weight(params, rate_filter, significance)),
+                           w_rate)
     shown = blended._replace(delta=wrap(blended.delta + w_rate * wrap(taken.delta - blended.delta)),
                              p00=blended.p00 + w_rate * (taken.p00 - blended.p00),
                              disturbance=blended.disturbance + w_rate * (taken.disturbance - blended.disturbance))

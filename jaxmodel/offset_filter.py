@@ -188,7 +188,7 @@ _BETA_ONEHOT = one_hot("beta")
 _SINCE_DRIFT_ONEHOT = one_hot("since_drift")
 
 
-def _added(fs, one_hot, amount):
+def added(fs, one_hot, amount):
     """``fs`` (an OffsetState) with ``amount`` added to the one field of ``one_hot``: one operation on the packed
     vector, where unpacking and repacking its fields to change one cost XLA:CPU about a seventh of the default step
     (bench/bench_run.py, stop 39)."""
@@ -414,12 +414,14 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     lost_after = jnp.where(steadily, params.filter_reacquire_lost_steady_m, unsteady_after)
     lost_m = jnp.where((weight < 0.5) | standing_lost,
                        f.lost_m + jnp.where(beyond, jnp.minimum(d_lost, lost_after / LOST_LOOKS), 0.0), 0.0)
+    # Rejected for filter_reacquire_m: the counts of how long the filter has followed the compass start again.
+    long_rejected = rejected_m > params.filter_reacquire_m
     new = OffsetFields(
         wrap(new_x[0]), *new_x[1:], **new_P,
         disturbance=disturbance - dot(h, gain) * nu, since_absolute=jnp.zeros_like(f.since_absolute),
         rejected_m=rejected_m, since_drift=f.since_drift, level=level, wander=wander, lost_m=lost_m,
-        accepted_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.accepted_m + d_t),
-        sign_m=jnp.where(rejected_m > params.filter_reacquire_m, 0.0, f.sign_m), peak_rate=f.peak_rate)
+        accepted_m=jnp.where(long_rejected, 0.0, f.accepted_m + d_t), sign_m=jnp.where(long_rejected, 0.0, f.sign_m),
+        peak_rate=f.peak_rate)
     # Re-acquisition: an anomaly, a bridge or a car park moves DELTA for tens to hundreds of
     # metres; a compass that disagrees for longer than filter_reacquire_m is believed again, as
     # at the start (FIG. 8B), since the wheels are then the ones in error (a rate state that ran
@@ -450,7 +452,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     # A compass that disagrees steadily by more than any shifted hard iron can turn it, rejected for
     # filter_reacquire_m, says the filter is locked out, whatever its rate (a hidden 0.1 % tyre mismatch whose drift
     # the rate filter caught only in part: 33 deg off a clean compass for 4.6 km, independent mixed seed 25).
-    far_restart = (jnp.abs(level) > deg(FAR_RESTART_DEG)) & very_steadily & (rejected_m > params.filter_reacquire_m)
+    far_restart = (jnp.abs(level) > deg(FAR_RESTART_DEG)) & very_steadily & long_rejected
     reacquire = reacquire | young_restart | far_restart
     # Selections on the packed vectors (one operation each): without a sample (not ok) nothing moved.
     reacquire, ok = computed_once(reacquire), computed_once(ok)
@@ -541,7 +543,7 @@ def lost(params, disturbance):
 def shift_rate(fs, change_per_m):
     """The wheel heading's rate per metre changed by ``change_per_m`` (a new calibration): the offset's rate moves
     opposite."""
-    return _added(fs, _BETA_ONEHOT, -jnp.asarray(change_per_m))
+    return added(fs, _BETA_ONEHOT, -jnp.asarray(change_per_m))
 
 
 def bound(params, fs, initialized):
@@ -586,4 +588,4 @@ def count_since_large_drift(params, rate_filter, previous, d_t):
     2.75 deg with this; docs/tuning.md, stop 30)."""
     since = jnp.where(large_drift(params, rate_filter), 0.0,
                       jnp.minimum(previous.since_drift, NEVER_DRIFTED_M) + d_t)
-    return _added(rate_filter, _SINCE_DRIFT_ONEHOT, since - rate_filter.since_drift)
+    return added(rate_filter, _SINCE_DRIFT_ONEHOT, since - rate_filter.since_drift)

@@ -28,6 +28,18 @@ def drifting_significantly(params, rate_filter):
     return drifting(params, rate_filter) & significant(params, rate_filter)
 
 
+def rate_z(rate_filter):
+    """The rate's significance, signed like the rate: beta / sigma_beta (1)."""
+    return rate_filter.beta / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
+
+
+def followed_since_before(rate_filter, steady, lead_m):
+    """Whether the rate filter has followed the compass (its ``accepted_m``) ``lead_m`` metres longer than the steady
+    filter has rejected it (its ``rejected_m``): its rate was learned before the steady filter's disagreement began
+    (bool)."""
+    return rate_filter.accepted_m > steady.rejected_m + lead_m
+
+
 FOLLOW_STEEPNESS = 8.0
 """Slope of follow_weight per unit of z (8: the weight goes 0.018 -> 0.98 between z - 0.5 and z + 0.5)."""
 
@@ -40,8 +52,7 @@ def follow_weight(params, rate_filter, significance=None):
     10 Hz the pull of an insignificant rate is nil, of a significant one complete within samples).
     """
     significance = params.filter_rate_significance if significance is None else significance
-    z = jnp.abs(rate_filter.beta) / jnp.sqrt(jnp.maximum(rate_filter.p11, 1e-300))
-    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (z - significance))
+    return jax.nn.sigmoid(FOLLOW_STEEPNESS * (jnp.abs(rate_z(rate_filter)) - significance))
 
 
 def significant(params, rate_filter):
@@ -81,6 +92,6 @@ def steady_lags(params, rate_filter, steady):
     filter has not followed the compass since before the steady one rejected it (highway/hard_iron_shift/103 1.85 deg
     with this, 8.0 with ``drifting`` at 0.8 deg; docs/tuning.md, stop 70).  rate_filter, steady: OffsetStates (the
     rate filter after this sample's update, the steady one before it)."""
-    return ((rate_filter.accepted_m > steady.rejected_m + LAG_LEAD_M)
+    return (followed_since_before(rate_filter, steady, LAG_LEAD_M)
             & (jnp.abs(rate_filter.beta) * params.filter_reacquire_m > deg(LAG_DRIFT_DEG))
             & (rate_filter.beta ** 2 > LAG_Z ** 2 * rate_filter.p11))
