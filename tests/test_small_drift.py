@@ -162,22 +162,21 @@ def test_kept_sign_counts_metres_of_one_sign_beyond_its_sigmas_and_the_peak_rate
     assert float(follow.kept_sign(_following(params, 12e-6, 10e-6, 500.0), 2.0, jnp.asarray(True)).peak_rate) == 0.0
 
 
-@pytest.mark.parametrize("beta, accepted_m, sign_m, peak_rate, rejected_m, persists", [
-    (19e-6, 20000.0, 15000.0, 25e-6, 0.0, True),      # a ratio 30 ppm off, followed all along
-    (-19e-6, 20000.0, -15000.0, 25e-6, 0.0, True),    # either sign
-    (19e-6, 20000.0, 10000.0, 25e-6, 0.0, False),     # its sign kept for half the metres only
-    (19e-6, 20000.0, -15000.0, 25e-6, 0.0, False),    # the count's sign is not the rate's
-    (19e-6, 2500.0, 2500.0, 25e-6, 0.0, False),       # under PERSIST_MIN_M followed
-    (19e-6, 20000.0, 15000.0, 25e-6, 18000.0, False),  # the steady filter rejected the compass nearly as long
-    (19e-6, 20000.0, 15000.0, 125e-6, 0.0, False),    # once large: a hill's fake rate decaying
-    (50e-6, 20000.0, 15000.0, 50e-6, 0.0, False),     # over PERSIST_MAX_RATE: the calibration's and the hold's
-    (50e-6, 20000.0, 15000.0, 25e-6, 0.0, False),     # the rate over it at 1.4 sigmas, under PEAK_Z (sigma below)
+@pytest.mark.parametrize("beta, sigma, accepted_m, sign_m, peak_rate, rejected_m, persists", [
+    (19e-6, 9e-6, 20000.0, 15000.0, 25e-6, 0.0, True),       # a ratio 30 ppm off, followed all along
+    (-19e-6, 9e-6, 20000.0, -15000.0, 25e-6, 0.0, True),     # either sign
+    (19e-6, 9e-6, 20000.0, 10000.0, 25e-6, 0.0, False),      # its sign kept for half the metres only
+    (19e-6, 9e-6, 20000.0, -15000.0, 25e-6, 0.0, False),     # the count's sign is not the rate's
+    (19e-6, 9e-6, 2500.0, 2500.0, 25e-6, 0.0, False),        # under PERSIST_MIN_M followed
+    (19e-6, 9e-6, 20000.0, 15000.0, 25e-6, 18000.0, False),  # the steady filter rejected the compass nearly as long
+    (19e-6, 9e-6, 20000.0, 15000.0, 125e-6, 0.0, False),     # once large: a hill's fake rate decaying
+    (50e-6, 36e-6, 20000.0, 15000.0, 50e-6, 0.0, False),     # over PERSIST_MAX_RATE: the calibration's and the hold's
+    (50e-6, 36e-6, 20000.0, 15000.0, 25e-6, 0.0, False),     # the rate over it at 1.4 sigmas, under PEAK_Z
 ])
-def test_a_persistent_drift_is_small_of_one_sign_and_followed_for_long(beta, accepted_m, sign_m, peak_rate,
+def test_a_persistent_drift_is_small_of_one_sign_and_followed_for_long(beta, sigma, accepted_m, sign_m, peak_rate,
                                                                        rejected_m, persists):
     params = jm.make_params({})
-    rf = _following(params, beta, 9e-6 if abs(beta) < 4e-5 else 36e-6, accepted_m, sign_m=sign_m,
-                    peak_rate=peak_rate)
+    rf = _following(params, beta, sigma, accepted_m, sign_m=sign_m, peak_rate=peak_rate)
     assert bool(follow.persistent_drift(rf, _offset_state(params, rejected_m=rejected_m))) is persists
 
 
