@@ -21,7 +21,7 @@ from . import offset_filter as _offset
 from . import rate_significance as _rate
 from . import wheel_step as _step
 from .angles import safe_div, wrap
-from .packed import computed_once
+from .packed import computed_once, value_once
 from .params import deg, field_magnitude_given
 
 
@@ -57,7 +57,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     d_t, alpha = odo["d_t"], odo["alpha"]
     # FIG. 8 block 6 / 8E / 8E-A, in the figure's order (before 8F): every F_update_distance_m,
     # SDD of the compass-minus-wheel DELTA and F, so SD_N judges the compass, not the map.
-    compass_delta = wrap(h_c - wheel_heading)
+    compass_delta = value_once(wrap(h_c - wheel_heading))
     compass_on = compass_ok & (initialized > 0.5)
     distance_since_F = state.distance_since_F + jnp.where(compass_on, d_t, 0.0)
     update_F = compass_on & (distance_since_F >= params.F_update_distance_m)
@@ -72,6 +72,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
         params, h_c, wheel_heading, state.heading, sample.map_heading, sample.map_valid,
         sample.compass_unreliable_area)
     absolute_ok = (compass_ok | map_used) & (initialized > 0.5)
+    delta = value_once(delta)
 
     # FIG. 8G / 8H: the rate filter follows drifting wheels, the steady filter (no rate) gives F-DELTA.
     # The start's anchor is young for its first km of absolute headings: one straight road on a grade can be it.
@@ -121,7 +122,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     persistent = _follow.persistent_drift(offset, steady)
     steady, shown = _follow.follow(params, steady, offset, initializing, d_t, hold_on_drift=not captures_drift(config),
                                    calibrated=calibrated, agreed=agreed, persistent=persistent)
-    f_delta = shown.delta
+    f_delta = value_once(shown.delta)
 
     field_sum, field_count = state.field_sum, state.field_count
     # A lost filter's restart: F-DELTA moved beyond filter_reacquire_large_deg in one sample, or with the steady one.
@@ -135,7 +136,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     field_sum, field_count = _compass.learn_field(
         params, field_sum, field_count, h_c_raw, b_m, b_e, d_t,
         compass_ok & (clean_weight > 0.5) | (compass_ok & (initialized < 0.5)))
-    complementary = wrap(wheel_heading + f_delta)
+    complementary = value_once(wrap(wheel_heading + f_delta))
     wheel_step, step, step_suspected = state.wheel_step, 0.0, False
     if finds_wheel_steps(config):
         # A compass that disagrees by one angle at every heading says the wheels stepped (jaxmodel/wheel_step.py).

@@ -37,6 +37,7 @@ from . import soft_iron_field as _sfield
 from . import track as _track
 from . import wheel_step as _wheel_step
 from .angles import wrap
+from .packed import value_once
 from .params import deg
 
 MODES = ("complementary", "odometer", "compass", "kalman")
@@ -336,7 +337,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     state, hard_iron, h_c_raw, b_m, compass_ok, hard_iron_restart = _compass_stage(params, state, sample, config,
                                                                                   d_t, alpha)
     if robust:
-        b_e = _compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m)
+        # Read by most of the step: computed once (packed.value_once).
+        h_c_raw, b_m = value_once(h_c_raw), value_once(b_m)
+        b_e = value_once(_compass.expected_field(params, state.field_sum, state.field_count, h_c_raw, b_m))
     else:
         b_e, seed_field = _fdelta.seed_expected_field(params, state, b_m, compass_ok)
     e_c = jnp.where(compass_ok, _compass.compass_error_bound(params, b_m, b_e), state.e_c)
@@ -360,6 +363,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         wheel_heading = jnp.where(started, wrap(wheel_heading + rotation), wheel_heading)
         initializing = initializing | started
     initialized = jnp.where(initializing, 1.0, state.initialized)
+    if robust:
+        h_c, wheel_heading = value_once(h_c), value_once(wheel_heading)
 
     # FIG. 8D: wheel error bound.
     e_w = _hf.wheel_error_bound(params, state.e_w, alpha, d_t)

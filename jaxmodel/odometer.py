@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from . import plausibility as _guard
 from . import track as _track
 from .angles import safe_div
-from .packed import computed_once
+from .packed import computed_once, value_once
 
 
 INTERVAL_MIN_PULSES = 32.0
@@ -53,6 +53,9 @@ def odometer(params, state, sample, track_table, robust=False):
     dpp = counts["dpp"]
     d_left, d_right, n_left, n_right, plausible, kept, dD_sigma, guard_state = _plausible_distances(
         params, state, counts, started, time_ok, dt, robust)
+    if robust:
+        # The guard's distances and the sample's interval are read by most of the step: computed once.
+        d_left, d_right, dt = value_once(d_left), value_once(d_right), value_once(dt)
 
     dD = d_left - d_right
     AD = 0.5 * (d_left + d_right)
@@ -72,6 +75,8 @@ def odometer(params, state, sample, track_table, robust=False):
     window_AD = keep * state.window_AD + d_t
     curvature = safe_div(window_dD, window_AD, eps=1e-6)
     track, alpha, interval = _interval_turn(params, state, dD, signed_dD, d_t, speed, dpp, track_table, robust)
+    if robust:
+        track, alpha, speed = value_once(track), value_once(alpha), value_once(speed)
     return dict(dt=dt, dt_counts=counts["dt_counts"], held=counts["held"], last_count_time=counts["last_count_time"],
                 time_ok=time_ok, left=counts["left"], right=counts["right"], n_left=n_left, n_right=n_right, dD=dD,
                 AD=AD, d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,

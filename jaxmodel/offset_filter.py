@@ -101,7 +101,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from .angles import safe_div, wrap
-from .packed import computed_once, packed_state
+from .packed import computed_once, packed_state, value_once
 from .params import deg, field_magnitude_given
 from .rate_significance import large_drift
 from .compass_noise import samples_per_measurement
@@ -192,7 +192,7 @@ def added(fs, one_hot, amount):
     """``fs`` (an OffsetState) with ``amount`` added to the one field of ``one_hot``: one operation on the packed
     vector, where unpacking and repacking its fields to change one cost XLA:CPU about a seventh of the default step
     (bench/bench_run.py, stop 39)."""
-    return OffsetState(fs.vector + jnp.asarray(amount)[..., None] * one_hot)
+    return OffsetState(fs.vector + value_once(jnp.asarray(amount, jnp.float64))[..., None] * one_hot)
 
 
 def init_offset_state(params):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 
@@ -52,3 +53,23 @@ def computed_once(flag):
     17 of 66 us per step (64 drives).  A square root, exact on 0 and 1, is an operation it does not repeat.
     """
     return jnp.sqrt(jnp.where(flag, 1.0, 0.0)) > 0.5
+
+
+@jax.custom_jvp
+def value_once(value):
+    """``value`` (float, per drive), made a value XLA:CPU computes once, as ``computed_once`` does for a flag.
+
+    A scalar from a long chain of cheap operations is recomputed by every kernel that reads it: the rate filter's
+    one-field additions (``offset_filter.added``) recomputed theirs for each of its 37 fields, 32 of ~470 us per step
+    (64 drives, stop 76).  A reduction is a kernel of its own; the maximum with -inf returns ``value`` exactly (-0.0,
+    inf and NaN included).  Its tangent is the value's own (``_value_once_jvp``).
+    """
+    value = jnp.asarray(value, jnp.float64)
+    return jnp.max(jnp.stack([value, jnp.full_like(value, -jnp.inf)], axis=-1), axis=-1)
+
+
+@value_once.defjvp
+def _value_once_jvp(primals, tangents):
+    # The identity's tangent: the maximum's own would divide by the count of elements equal to it, 0 where the value is
+    # NaN, and so make a NaN cotangent on a branch a double-where had masked.
+    return value_once(primals[0]), jnp.asarray(tangents[0], jnp.float64)

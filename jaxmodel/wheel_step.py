@@ -42,6 +42,7 @@ import jax.numpy as jnp
 
 from .angles import wrap
 from .offset_filter import OffsetState, one_hot
+from .packed import computed_once
 
 STEP_BINS = 8
 """Bins of the heading EH (45 deg each)."""
@@ -106,7 +107,7 @@ def update(state, disagreement, heading, b_m, b_e, d_t, use, episode):
     episode and after a step."""
     f = state.fields()
     seen_now = use & episode & (d_t > 0.0) & jnp.isfinite(disagreement)
-    ok = seen_now & (jnp.abs(b_m - b_e) < STEP_FIELD_GATE * b_e)
+    ok = computed_once(seen_now & (jnp.abs(b_m - b_e) < STEP_FIELD_GATE * b_e))
     weight = jnp.where(ok, d_t, 0.0)
     nu = jnp.where(ok, wrap(disagreement), 0.0)
     bin_of = jnp.floor(jnp.mod(jnp.where(ok, heading, 0.0), 2.0 * jnp.pi) / (2.0 * jnp.pi / STEP_BINS))
@@ -138,7 +139,7 @@ def update(state, disagreement, heading, b_m, b_e, d_t, use, episode):
     one_angle = one_angle & (total >= STEP_FIELD_FRACTION * seen)
     suspected = episode & one_angle
     stepped = ok & one_angle & spread & (total >= STEP_MIN_M)
-    keep = jnp.where(stepped | ~episode, 0.0, 1.0)
+    keep = jnp.where(computed_once(stepped | ~episode), 0.0, 1.0)
     new = WheelStepState(keep[..., None] * jnp.concatenate([w, s, jnp.stack([seen, sx, sxx, sxn], axis=-1)], axis=-1))
     return new, jnp.where(stepped, mean, 0.0), suspected
 
