@@ -14,7 +14,7 @@ from jax.test_util import check_grads
 
 import jaxmodel as jm
 from jaxmodel.angles import sin_polynomial, wrap
-from jaxmodel.packed import computed_once
+from jaxmodel.packed import computed_once, value_once
 
 N = 48
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e300, -1e300, 1e-300])
@@ -161,3 +161,21 @@ def test_computed_once_keeps_the_flag():
     flags = jnp.array([True, False, True])
     np.testing.assert_array_equal(np.asarray(computed_once(flags)), np.asarray(flags))
     assert bool(jax.jit(computed_once)(jnp.bool_(True))) and not bool(jax.jit(computed_once)(jnp.bool_(False)))
+
+
+@given(hnp.arrays(np.float64, 5, elements=st.one_of(st.floats(allow_nan=False), SPECIAL)))
+@settings(max_examples=50, deadline=None)
+def test_value_once_is_the_value_bit_for_bit(values):
+    out = np.asarray(jax.jit(value_once)(jnp.asarray(values)))
+    np.testing.assert_array_equal(out.view(np.int64)[~np.isnan(values)], values.view(np.int64)[~np.isnan(values)])
+    assert np.isnan(out[np.isnan(values)]).all()
+
+
+def test_value_once_passes_the_gradient_and_none_from_a_masked_nan():
+    check_grads(lambda v: value_once(v) ** 3 * jnp.sin(v), (jnp.array([0.3, -1.2, 0.0]),), order=2, modes=["fwd", "rev"])
+    # A double-where masks a NaN on the branch not taken; a maximum's own gradient would divide by the count of
+    # elements equal to it (none, for a NaN) and put the NaN back into the cotangent.
+    x = jnp.array([1.5, jnp.nan, -2.0])
+    grad = jax.grad(lambda v: jnp.sum(jnp.where(jnp.isfinite(v), value_once(jnp.where(jnp.isfinite(v), v, 0.0)), 0.0)
+                                      + jnp.where(jnp.isfinite(v), 0.0, value_once(v) * 0.0)))(x)
+    np.testing.assert_array_equal(np.asarray(grad), [1.0, 0.0, 1.0])
