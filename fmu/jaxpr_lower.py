@@ -41,7 +41,7 @@ import numpy as np
 
 from .lowered_code import (
     _BOOL_AND, _BOOL_BINARY, _BOOL_OR, _BOOL_UNARY, _COMPARE, _CONVERT, _FLOAT_BINARY, _FLOAT_DIV,
-    _FLOAT_DIV_NONZERO, _FLOAT_MAX, _FLOAT_MIN, _FLOAT_UNARY, _INDEX, _INT_BINARY, _INT_MAX, _INT_MIN,
+    _BITS2F, _F2BITS, _FLOAT_DIV_NONZERO, _FLOAT_MAX, _FLOAT_MIN, _FLOAT_UNARY, _INDEX, _INT64_MIN, _INT_BINARY, _INT_MAX, _INT_MIN,
     _INT_UNARY, _ROUND_AWAY, _ROUND_EVEN, _SELECT2, IDENTITY, Lowered, Program, Ref, T, Tpl, Unsupported,
     _atom_kind, _clampi, _const_array, _integer_pow_template, _kind, _Line, _lit, _objarray, _py,
     _select_n, _simplifier,
@@ -62,6 +62,7 @@ class _Emitter:
         self.kinds: dict[str, str] = {}
         self.counter = 0
         self.max_unroll = max_unroll
+        self.bitcast_of: dict[str, tuple[Tpl, Any]] = {}  # a bitcast's local -> (its template, its operand)
 
     # -- atoms ------------------------------------------------------------------------------
     def emit(self, tpl: Tpl, operands: Sequence[Any], kind: str):
@@ -171,6 +172,8 @@ class _Emitter:
             src = _kind(in_avals[0].dtype)
             dst = _kind(p["new_dtype"])
             return [self.elementwise(_CONVERT[(src, dst)], ins, dst)]
+        if name == "bitcast_convert_type":
+            return [self._bitcast_eqn(ins[0], in_avals[0].dtype, p["new_dtype"])]
         if name == "integer_pow":
             return [self.elementwise(_integer_pow_template(int(p["y"]), kind), ins, kind)]
         if name == "round":
@@ -188,6 +191,23 @@ class _Emitter:
         if len(ins) == 2 and name in binary:
             return [self.elementwise(binary[name], ins, kind, _simplifier(name, kind))]
         return None
+
+    def _bitcast_eqn(self, arr, src_dtype, dst_dtype):
+        """``bitcast_convert_type`` between float64 and int64, the bits unchanged; a round trip folds to its operand."""
+        src, dst = np.dtype(src_dtype), np.dtype(dst_dtype)
+        if src.itemsize != 8 or dst.itemsize != 8 or {_kind(src), _kind(dst)} != {"float", "int"}:
+            raise Unsupported(f"bitcast_convert_type {src} -> {dst} (only float64 <-> int64)")
+        tpl = _F2BITS if _kind(src) == "float" else _BITS2F
+
+        def fold(ops):
+            back = self.bitcast_of.get(ops[0].name) if isinstance(ops[0], Ref) else None
+            return back[1] if back is not None and back[0] is not tpl else None
+
+        out = self.elementwise(tpl, [arr], _kind(dst), fold)
+        for x, y in zip(np.asarray(arr).reshape(-1), out.reshape(-1)):
+            if isinstance(y, Ref) and y is not x:
+                self.bitcast_of.setdefault(y.name, (tpl, x))
+        return out
 
     def _select_eqn(self, ins, pred_kind, kind):
         """``select_n``: the case picked by the predicate, folded when the predicate or the cases allow."""
@@ -390,6 +410,8 @@ class _Emitter:
         flat_groups = groups.reshape(-1, groups.shape[-1])
         for i in range(flat_out.size):
             atoms = list(flat_groups[i])
+            if name == "reduce_max" and kind == "int" and any(isinstance(a, Ref) for a in atoms):
+                atoms = [a for a in atoms if isinstance(a, Ref) or a != _INT64_MIN]  # the maximum's identity
             if not atoms:
                 if empty is None:
                     raise Unsupported(f"{name} over an empty axis")

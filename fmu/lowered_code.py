@@ -177,6 +177,9 @@ _CONVERT = {
     ("bool", "float"): T("(1.0 if {0} else 0.0)", "(({0}) ? 1.0 : 0.0)"),
     ("bool", "int"): T("(1 if {0} else 0)", "(({0}) ? 1LL : 0LL)"),
 }
+_F2BITS = T("_f2bits({0})", "odc_f2bits({0})")
+_BITS2F = T("_bits2f({0})", "odc_bits2f({0})")
+_INT64_MIN = -(2**63)
 _ROUND_EVEN = T("((float(round({0})) or {0} * 0.0) if -4.5e15 < {0} < 4.5e15 else {0})", "nearbyint({0})")
 _ROUND_AWAY = T("_round_away({0})", "round({0})")
 _INDEX = T("{0}[{1}]")
@@ -366,6 +369,8 @@ def _lit_c(atom) -> str:
     if isinstance(atom, bool):
         return "1" if atom else "0"
     if isinstance(atom, int):
+        if atom == _INT64_MIN:  # its magnitude does not fit a long long literal
+            return "(-9223372036854775807LL - 1)"
         return f"{atom}LL" if atom >= 0 else f"({atom}LL)"
     if isinstance(atom, float):
         if atom != atom:

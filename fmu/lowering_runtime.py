@@ -11,6 +11,7 @@ Standard library only, so that the FMU can bundle it with the lowering.
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 __all__ = ["RUNTIME", "C_PRELUDE"]
@@ -198,6 +199,16 @@ def _f2i(x, lo=-(2**31), hi=2**31 - 1):
     return int(x)
 
 
+def _f2bits(x):
+    """The bits of a float64 as an int64 (``bitcast_convert_type``)."""
+    return struct.unpack("<q", struct.pack("<d", x))[0]
+
+
+def _bits2f(i):
+    """The float64 whose bits are the int64 ``i``."""
+    return struct.unpack("<d", struct.pack("<q", i))[0]
+
+
 def _fmax(a, b):
     return a if (a >= b or a != a) else b
 
@@ -227,6 +238,8 @@ static inline long long odc_f2i(double x) {
     if (x <= -2147483648.0) return -2147483648LL;
     return (long long)x;
 }
+static inline long long odc_f2bits(double x) { union { double d; long long i; } u; u.d = x; return u.i; }
+static inline double odc_bits2f(long long i) { union { double d; long long i; } u; u.i = i; return u.d; }
 static inline long long odc_idiv(long long a, long long b) { return b == 0 ? -1 : a / b; }
 static inline long long odc_irem(long long a, long long b) { return b == 0 ? a : a % b; }
 static inline long long odc_clampi(long long i, long long lo, long long hi) { return i < lo ? lo : (i > hi ? hi : i); }

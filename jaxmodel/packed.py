@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 
 def packed_state(fields_type, name: str, doc: str):
@@ -61,11 +62,14 @@ def value_once(value):
 
     A scalar from a long chain of cheap operations is recomputed by every kernel that reads it: the rate filter's
     one-field additions (``offset_filter.added``) recomputed theirs for each of its 37 fields, 32 of ~470 us per step
-    (64 drives, stop 76).  A reduction is a kernel of its own; the maximum with -inf returns ``value`` exactly (-0.0,
-    inf and NaN included).  Its tangent is the value's own (``_value_once_jvp``).
+    (64 drives, stop 76).  A reduction is a kernel of its own.  It reduces the value's bits as an integer, the maximum
+    with the smallest int64, so that it returns ``value`` bit for bit: -0.0, inf, NaN and subnormals included (a
+    float maximum flushes subnormals to zero where XLA:CPU runs with denormals off, as the test suite's flags and
+    eager dispatch do).  Its tangent is the value's own (``_value_once_jvp``).
     """
-    value = jnp.asarray(value, jnp.float64)
-    return jnp.max(jnp.stack([value, jnp.full_like(value, -jnp.inf)], axis=-1), axis=-1)
+    bits = lax.bitcast_convert_type(jnp.asarray(value, jnp.float64), jnp.int64)
+    floor = jnp.full_like(bits, jnp.iinfo(jnp.int64).min)
+    return lax.bitcast_convert_type(jnp.max(jnp.stack([bits, floor], axis=-1), axis=-1), jnp.float64)
 
 
 @value_once.defjvp

@@ -19,6 +19,7 @@ from jax import lax
 
 from fmu import jaxpr_lower as jl
 from fmu.build import C_FLAGS, _compiler
+from jaxmodel.packed import value_once
 
 # No subnormal numbers: XLA:CPU flushes them to zero, the lowered code keeps IEEE gradual underflow.
 EDGE = np.array([0.0, -0.0, 0.5, -0.5, 1.5, -2.5, 2.5, 3.0, -7.25, 1e-300, 1e308, -1e308, 710.0, -745.5,
@@ -38,6 +39,12 @@ EXACT = {
     "clip": lambda x, y: jnp.clip(x, -1.0, 2.0), "logic": lambda x, y: jnp.where((x > 0) & ~(y < 0) | (x == y), 1., 2.),
     "f2i": lambda x, y: jnp.clip(x, -1e12, 1e12).astype(jnp.int32).astype(jnp.float64),
     "mod": lambda x, y: jnp.mod(x, 3.0),
+    # the bits as int64 and back (jaxmodel.packed.value_once): the next float away from zero; the maximum with the
+    # smallest int64 (a literal C cannot write as such); the round trip, folded away
+    "bits_next": lambda x, y: lax.bitcast_convert_type(lax.bitcast_convert_type(x, jnp.int64) + 1, jnp.float64),
+    "bits_max": lambda x, y: lax.bitcast_convert_type(
+        jnp.maximum(lax.bitcast_convert_type(x, jnp.int64), jnp.int64(-(2**63))), jnp.float64),
+    "value_once": lambda x, y: value_once(x),
 }
 TRANSCENDENTAL = {
     "exp": lambda x, y: jnp.exp(x), "log": lambda x, y: jnp.log(x), "sin": lambda x, y: jnp.sin(x),
@@ -148,6 +155,16 @@ def test_parameters_fold_into_constants():
     a = folded.to_python().fn(x)[0]
     b = free.to_python().fn([0.3, 2.0], x)[0]
     assert a == b
+
+
+def test_bitcast_round_trip_folds_away():
+    with jax.enable_x64(True):
+        closed = jax.make_jaxpr(lambda x: value_once(x) * 2.0)(jnp.zeros(3))
+    program = jl.lower_program(closed, [None])
+    c_text = program.to_c("fn")
+    assert "bits" not in c_text, c_text
+    got = np.asarray(program.to_python("fn").fn([1.5, -0.0, 5e-324])[0], np.float64)
+    assert np.array_equal(got.view(np.int64), np.array([3.0, -0.0, 1e-323]).view(np.int64))
 
 
 def test_unsupported_primitive_is_reported():
