@@ -27,7 +27,7 @@ import jaxmodel as jm  # noqa: E402
 from bench_run import batch_headings, make_batch  # noqa: E402
 
 CONFIGS = {"default": dict(), "complementary": dict(refine_a=False, calibration=False),
-           "seed": dict(robust=False)}
+           "seed": dict(robust=False), "kalman": dict(mode="kalman"), "odometer": dict(mode="odometer")}
 
 
 def kernel_medians(compiled, batch, steps):
@@ -44,6 +44,30 @@ def kernel_medians(compiled, batch, steps):
     return {name: sorted(d)[len(d) // 2] for name, d in durations.items() if len(d) >= steps}
 
 
+def _source_lines(text):
+    """stack_frame_id -> "file.py:line" of the frame, from the HLO text's FileNames/FileLocations/StackFrames tables."""
+    tables, current = collections.defaultdict(dict), None
+    for line in text.splitlines():
+        if line in ("FileNames", "FunctionNames", "FileLocations", "StackFrames"):
+            current = line
+        elif not line.strip():
+            current = None if current != "FileNames" or tables[current] else current
+        elif current:
+            key, _, rest = line.partition(" ")
+            tables[current][key] = rest
+    files = {k: Path(v.strip('"')).name for k, v in tables["FileNames"].items()}
+
+    def field(rest, name):
+        return rest.split(f"{name}=")[1].split()[0].rstrip("}") if f"{name}=" in rest else None
+
+    where = {}
+    for frame, rest in tables["StackFrames"].items():
+        loc = tables["FileLocations"].get(field(rest, "file_location_id"), "")
+        if loc:
+            where[frame] = f"{files.get(field(loc, 'file_name_id'), '?')}:{field(loc, 'line')}"
+    return where
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", choices=sorted(CONFIGS), default="default")
@@ -58,12 +82,14 @@ def main():
     compiled(batch).block_until_ready()
     medians = kernel_medians(compiled, batch, args.samples)
     text = compiled.as_text()
+    where = _source_lines(text)
     print(f"{args.config}: {len(medians)} kernels per step, sum of medians {sum(medians.values()):.1f} us "
           f"({args.drives} drives, profiled)")
     for name, us in sorted(medians.items(), key=lambda kv: -kv[1])[:args.top]:
         line = next((ln for ln in text.splitlines() if ln.lstrip().startswith(f"%{name} = ")), "")
         op = line.split('op_name="')[1].split('"')[0] if 'op_name="' in line else ""
-        print(f"{us:8.2f} us  {name:40s} {op[-70:]}")
+        frame = line.split("stack_frame_id=")[1].split()[0].rstrip("}") if "stack_frame_id=" in line else ""
+        print(f"{us:8.2f} us  {name:40s} {where.get(frame, ''):22s} {op[-60:]}")
 
 
 if __name__ == "__main__":

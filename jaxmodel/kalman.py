@@ -93,7 +93,7 @@ from .angles import safe_div, wrap
 from .fix_alignment import AlignmentState, init_alignment_state
 from .compass_noise import samples_per_measurement
 from .offset_filter import UNINITIALIZED_BOUND, lost, lost_distance, supported_bound
-from .packed import computed_once
+from .packed import computed_once, value_once
 from .params import deg
 from .rate_significance import drifting_significantly, large_drift
 
@@ -266,11 +266,16 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
         h = np.asarray(h, dtype=np.float64)
         pattern = h != 0.0
     hj = jnp.asarray(h)
+    # computed once (packed.value_once): the innovation, R, d^2 and the gate's scale reach every element of x and P, and
+    # XLA:CPU otherwise recomputes their chains (the measurement's, its noise model's) per element; so does P's.  Not
+    # K: made a value of its own, it changed 12 % of the headings by 1 ulp (how XLA contracts K nu + x) for 10 % speed.
+    nu, r = value_once(nu), value_once(r)
     hp = _left(pattern, hj, cov)                       # H P, (m, N_STATES)
     hph = _left(pattern, hj, hp.T)                     # H P H^T, (m, m)
     s0 = hph + r
-    d2 = _mm(_mm(nu, _inv(s0)), nu)
-    scale = jnp.where(gate > 0.0, jnp.clip(d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2, 1.0, MAX_GATE_SCALE), 1.0)
+    d2 = value_once(_mm(_mm(nu, _inv(s0)), nu))
+    scale = value_once(jnp.where(gate > 0.0, jnp.clip(d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2, 1.0, MAX_GATE_SCALE),
+                                 1.0))
     s = hph + scale * r
     k = _mm(hp.T, _inv(s))                             # (N_STATES, m)
     k = jnp.where(mask, k, 0.0)
@@ -280,7 +285,7 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
     ap = cov - _mm(k, hp)
     aph = _left(pattern, hj, ap.T).T                   # AP H^T, (N_STATES, m)
     p = ap - _mm(aph, k.T) + scale * _mm(_mm(k, r), k.T)
-    return x, 0.5 * (p + p.T), d2
+    return x, value_once(0.5 * (p + p.T)), d2
 
 
 def _samples_per_measurement(params, distance, dt):
@@ -442,7 +447,8 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
     with the compass removed and 1.5-2.5 % hidden: 100 deg RMSE without, stop 49).  The first start keeps beta
     known: released there, it took the fixes' coloured errors for drift (no-compass drives 0.39 -> 0.51 deg urban,
     1.3 -> 3.9 deg parking).  Returns (state, heading, east, north)."""
-    hit = started | realigned
+    hit = computed_once(started | realigned)
+    realigned = computed_once(realigned)
     cov = jnp.where(realigned & _COURSE_BLOCK, initial_covariance(params), ks.cov)
     # The frozen course turned by theta: dth2^ = frozen dth2 - theta, beta^ the frozen one (the filter's own ran off).
     frozen = ks.alignment.fields()
@@ -456,7 +462,8 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
     east = jnp.where(hit, fix_east, ks.x)
     north = jnp.where(hit, fix_north, ks.y)
     al = _align.done(ks.alignment, hit)
-    lost_fixes = (al.by_fixes > 0.5) & (al.realigning < 0.5) & (ks.fix_rejected >= REALIGN_FIX_COUNT) & ~hit
+    lost_fixes = computed_once((al.by_fixes > 0.5) & (al.realigning < 0.5) & (ks.fix_rejected >= REALIGN_FIX_COUNT)
+                               & ~hit)
     al = AlignmentState(jnp.where(lost_fixes, _align.again(al, ks.err[I_DRIFT], ks.err[I_RATE]).vector, al.vector))
     heading = jnp.where(realigned, wrap(heading + ks.err[I_DRIFT] - err[I_DRIFT]), heading)
     rejected = jnp.where(hit, 0.0, ks.fix_rejected)
@@ -482,7 +489,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     """
     if not enabled:
         return ks, wheel_heading, ks.x, ks.y
-    active = ks.active > 0.5
+    active = computed_once(ks.active > 0.5)
     p0 = initial_covariance(params)
     dt, speed, dist_used, course_ok = _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, held)
     # 2. DF(V).
@@ -583,12 +590,13 @@ def _fix_update(params, ks, err, cov, active, north, east, fix_east, fix_north, 
     fn = jnp.where(fix_ok, fix_north, 0.0)
     nu_f = jnp.stack([north - fn - (err[I_N] - err[I_FIX_N]), east - fe - (err[I_E] - err[I_FIX_E])])
     r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
-    repositions = fix_ok & (ks.reposition > 0.5)
+    fix_ok = computed_once(fix_ok)
+    repositions = computed_once(fix_ok & (ks.reposition > 0.5))
     cov = _reposition(cov, repositions)
     gate_f = jnp.where((ks.fixes > 0.5) & ~repositions, params.kf_gate_sigma, 0.0)
     err, cov, d2_f = update(err, cov, nu_f, H_FIX, r_f, fix_ok, gate_f)
     far = fix_ok & ~repositions & (d2_f > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
-    fix_rejected = jnp.where(fix_ok, jnp.where(far, ks.fix_rejected + 1.0, 0.0), ks.fix_rejected)
+    fix_rejected = value_once(jnp.where(fix_ok, jnp.where(far, ks.fix_rejected + 1.0, 0.0), ks.fix_rejected))
     reposition = restarted | (fix_rejected >= FIX_REACQUIRE_COUNT) | ((ks.reposition > 0.5) & ~repositions)
     fix_rejected = jnp.where(fix_rejected >= FIX_REACQUIRE_COUNT, 0.0, fix_rejected)
     return err, cov, fix_ok, fix_rejected, reposition
