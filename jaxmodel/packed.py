@@ -62,10 +62,11 @@ def value_once(value):
 
     A scalar from a long chain of cheap operations is recomputed by every kernel that reads it: the rate filter's
     one-field additions (``offset_filter.added``) recomputed theirs for each of its 37 fields, 32 of ~470 us per step
-    (64 drives, stop 76).  A reduction is a kernel of its own.  It reduces the value's bits as an integer, the maximum
-    with the smallest int64, so that it returns ``value`` bit for bit: -0.0, inf, NaN and subnormals included (a
-    float maximum flushes subnormals to zero where XLA:CPU runs with denormals off, as the test suite's flags and
-    eager dispatch do).  Its tangent is the value's own (``_value_once_jvp``).
+    (64 drives, stop 76).  A reduction is a kernel of its own where several kernels read it (XLA:CPU may fuse it into
+    a single elementwise reader, which then computes it once per element it writes, as it should).  It reduces the
+    value's bits as an integer, the maximum with the smallest int64, so that it returns ``value`` bit for bit: -0.0,
+    inf, NaN and subnormals included (a float maximum flushes subnormals to zero where XLA:CPU runs with denormals
+    off, as the test suite's flags and eager dispatch do).  Its tangent is the value's own (``_value_once_jvp``).
     """
     bits = lax.bitcast_convert_type(jnp.asarray(value, jnp.float64), jnp.int64)
     floor = jnp.full_like(bits, jnp.iinfo(jnp.int64).min)
