@@ -42,7 +42,7 @@ import jax.numpy as jnp
 
 from .angles import wrap
 from .offset_filter import OffsetState, one_hot
-from .packed import computed_once
+from .packed import computed_once, value_once
 
 STEP_BINS = 8
 """Bins of the heading EH (45 deg each)."""
@@ -106,11 +106,12 @@ def update(state, disagreement, heading, b_m, b_e, d_t, use, episode):
     state, step (rad, 0 unless the module doc's conditions hold), suspected (bool)); the sums restart outside an
     episode and after a step."""
     f = state.fields()
-    seen_now = use & episode & (d_t > 0.0) & jnp.isfinite(disagreement)
+    seen_now = computed_once(use & episode & (d_t > 0.0) & jnp.isfinite(disagreement))
     ok = computed_once(seen_now & (jnp.abs(b_m - b_e) < STEP_FIELD_GATE * b_e))
-    weight = jnp.where(ok, d_t, 0.0)
-    nu = jnp.where(ok, wrap(disagreement), 0.0)
-    bin_of = jnp.floor(jnp.mod(jnp.where(ok, heading, 0.0), 2.0 * jnp.pi) / (2.0 * jnp.pi / STEP_BINS))
+    # computed once (packed.value_once): each is read by every field of the sums, which recomputed their chains
+    weight = value_once(jnp.where(ok, d_t, 0.0))
+    nu = value_once(jnp.where(ok, wrap(disagreement), 0.0))
+    bin_of = value_once(jnp.floor(jnp.mod(jnp.where(ok, heading, 0.0), 2.0 * jnp.pi) / (2.0 * jnp.pi / STEP_BINS)))
     in_bin = jnp.where(jnp.arange(STEP_BINS) == bin_of[..., None], 1.0, 0.0)
     w = f.w + weight[..., None] * in_bin
     s = f.s + (weight * nu)[..., None] * in_bin
@@ -153,6 +154,7 @@ def stepped(fs, step):
     """``fs`` (an offset_filter.OffsetState) after a step of the wheel heading of ``step`` rad: F-DELTA moves by it (and
     the running disagreement against it), its variance grows by the tolerance the bins agreed within, and the compass
     is no longer counted as rejected or lost.  Unchanged where ``step`` is 0."""
+    step = value_once(step)  # the bins' chain, ~200 operations, was otherwise recomputed for each of the 37 fields
     moved = step != 0.0
     variance = (jnp.radians(STEP_BIN_TOL_DEG) + STEP_BIN_TOL_FRACTION * jnp.abs(step)) ** 2
     vector = fs.vector + jnp.asarray(step)[..., None] * _MOVED + jnp.where(moved, variance, 0.0)[..., None] * _P00
