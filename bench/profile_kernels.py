@@ -1,7 +1,7 @@
 """Which XLA:CPU kernels the vmapped scan of one configuration spends its time in (the tool that found
 stop 21's slowdown: a sine repeated in 22 kernels, a flag recomputed for every field of a packed state).
 
-    .venv/bin/python bench/profile_kernels.py [--config default|complementary|seed] [--drives 64] [--samples 200] [--top 15]
+    .venv/bin/python bench/profile_kernels.py [--config default|complementary|seed|kalman|odometer] [--drives 64] [--samples 200] [--top 15]
 
 Runs ``jax.profiler`` over one batch (bench_run.make_batch) and prints, per kernel (thunk) of the scan's
 body, its median duration per step, with the kernel count per step and the sum.  The profiler adds
@@ -44,6 +44,11 @@ def kernel_medians(compiled, batch, steps):
     return {name: sorted(d)[len(d) // 2] for name, d in durations.items() if len(d) >= steps}
 
 
+def _attribute(text, name):
+    """The value of ``name=`` in one line of HLO text (an instruction or a table row), or None."""
+    return text.split(f"{name}=")[1].split()[0].rstrip("},") if f"{name}=" in text else None
+
+
 def _source_lines(text):
     """stack_frame_id -> "file.py:line" of the frame, from the HLO text's FileNames/FileLocations/StackFrames tables."""
     tables, current = collections.defaultdict(dict), None
@@ -51,20 +56,16 @@ def _source_lines(text):
         if line in ("FileNames", "FunctionNames", "FileLocations", "StackFrames"):
             current = line
         elif not line.strip():
-            current = None if current != "FileNames" or tables[current] else current
+            current = None
         elif current:
             key, _, rest = line.partition(" ")
             tables[current][key] = rest
     files = {k: Path(v.strip('"')).name for k, v in tables["FileNames"].items()}
-
-    def field(rest, name):
-        return rest.split(f"{name}=")[1].split()[0].rstrip("}") if f"{name}=" in rest else None
-
     where = {}
     for frame, rest in tables["StackFrames"].items():
-        loc = tables["FileLocations"].get(field(rest, "file_location_id"), "")
+        loc = tables["FileLocations"].get(_attribute(rest, "file_location_id"), "")
         if loc:
-            where[frame] = f"{files.get(field(loc, 'file_name_id'), '?')}:{field(loc, 'line')}"
+            where[frame] = f"{files.get(_attribute(loc, 'file_name_id'), '?')}:{_attribute(loc, 'line')}"
     return where
 
 
@@ -88,8 +89,7 @@ def main():
     for name, us in sorted(medians.items(), key=lambda kv: -kv[1])[:args.top]:
         line = next((ln for ln in text.splitlines() if ln.lstrip().startswith(f"%{name} = ")), "")
         op = line.split('op_name="')[1].split('"')[0] if 'op_name="' in line else ""
-        frame = line.split("stack_frame_id=")[1].split()[0].rstrip("}") if "stack_frame_id=" in line else ""
-        print(f"{us:8.2f} us  {name:40s} {where.get(frame, ''):22s} {op[-60:]}")
+        print(f"{us:8.2f} us  {name:40s} {where.get(_attribute(line, 'stack_frame_id'), ''):22s} {op[-60:]}")
 
 
 if __name__ == "__main__":

@@ -40,8 +40,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .lowered_code import (
-    _BOOL_AND, _BOOL_BINARY, _BOOL_OR, _BOOL_UNARY, _COMPARE, _CONVERT, _FLOAT_BINARY, _FLOAT_DIV,
-    _BITS2F, _F2BITS, _FLOAT_DIV_NONZERO, _FLOAT_MAX, _FLOAT_MIN, _FLOAT_UNARY, _INDEX, _INT64_MIN, _INT_BINARY, _INT_MAX, _INT_MIN,
+    _BITS2F, _BOOL_AND, _BOOL_BINARY, _BOOL_OR, _BOOL_UNARY, _COMPARE, _CONVERT, _F2BITS, _FLOAT_BINARY, _FLOAT_DIV,
+    _FLOAT_DIV_NONZERO, _FLOAT_MAX, _FLOAT_MIN, _FLOAT_UNARY, _INDEX, _INT64_MIN, _INT_BINARY, _INT_MAX, _INT_MIN,
     _INT_UNARY, _ROUND_AWAY, _ROUND_EVEN, _SELECT2, IDENTITY, Lowered, Program, Ref, T, Tpl, Unsupported,
     _atom_kind, _clampi, _const_array, _integer_pow_template, _kind, _Line, _lit, _objarray, _py,
     _select_n, _simplifier,

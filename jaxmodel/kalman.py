@@ -584,13 +584,13 @@ def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, c
 def _fix_update(params, ks, err, cov, active, north, east, fix_east, fix_north, fix_valid, restarted):
     """Step 4b, the position fix update (the first fix without the gate; see _reposition).  Returns (err, cov,
     fix_ok, fix_rejected, reposition: the next fix repositions)."""
-    fix_ok = (active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M) & (jnp.abs(fix_north) < MAX_FIX_M)
-              & (jnp.abs(ks.x) < MAX_FIX_M) & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
+    fix_ok = computed_once(active & (fix_valid > 0.5) & (jnp.abs(fix_east) < MAX_FIX_M)
+                           & (jnp.abs(fix_north) < MAX_FIX_M) & (jnp.abs(ks.x) < MAX_FIX_M)
+                           & (jnp.abs(ks.y) < MAX_FIX_M))  # also false for NaN/inf
     fe = jnp.where(fix_ok, fix_east, 0.0)
     fn = jnp.where(fix_ok, fix_north, 0.0)
     nu_f = jnp.stack([north - fn - (err[I_N] - err[I_FIX_N]), east - fe - (err[I_E] - err[I_FIX_E])])
     r_f = params.kf_fix_sigma_m ** 2 * jnp.eye(2)
-    fix_ok = computed_once(fix_ok)
     repositions = computed_once(fix_ok & (ks.reposition > 0.5))
     cov = _reposition(cov, repositions)
     gate_f = jnp.where((ks.fixes > 0.5) & ~repositions, params.kf_gate_sigma, 0.0)

@@ -157,5 +157,5 @@ def stepped(fs, step):
     step = value_once(step)  # the bins' chain, ~200 operations, was otherwise recomputed for each of the 37 fields
     moved = step != 0.0
     variance = (jnp.radians(STEP_BIN_TOL_DEG) + STEP_BIN_TOL_FRACTION * jnp.abs(step)) ** 2
-    vector = fs.vector + jnp.asarray(step)[..., None] * _MOVED + jnp.where(moved, variance, 0.0)[..., None] * _P00
+    vector = fs.vector + step[..., None] * _MOVED + jnp.where(moved, variance, 0.0)[..., None] * _P00
     return OffsetState(jnp.where(moved[..., None], vector * _CLEARED, fs.vector))
