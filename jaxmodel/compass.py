@@ -120,16 +120,17 @@ STALE_TURN_DEG = 5.0
 
 
 class StaleState(NamedTuple):
-    """The last finite raw compass reading (compass units) and the wheels' net turn (rad, alpha summed) since it
-    last changed."""
+    """The last finite raw compass reading (compass units), the wheels' net turn (rad, alpha summed) since it
+    last changed, and the seconds (the samples' dt summed) since the last fresh reading (``reading_interval``)."""
     last_x: jnp.ndarray
     last_y: jnp.ndarray
     turn: jnp.ndarray
+    since_s: jnp.ndarray
 
 
 def init_stale_state() -> StaleState:
     z = jnp.zeros((), jnp.float64)
-    return StaleState(z, z, z)
+    return StaleState(z, z, z, z)
 
 
 def stale_check(state: StaleState, compass_x, compass_y, alpha):
@@ -147,5 +148,17 @@ def stale_check(state: StaleState, compass_x, compass_y, alpha):
     same = (compass_x == state.last_x) & (compass_y == state.last_y)
     turn = jnp.where(same, state.turn + alpha, 0.0)
     keep = jnp.isfinite(compass_x) & jnp.isfinite(compass_y)
-    new = StaleState(jnp.where(keep, compass_x, state.last_x), jnp.where(keep, compass_y, state.last_y), turn)
+    new = StaleState(jnp.where(keep, compass_x, state.last_x), jnp.where(keep, compass_y, state.last_y), turn,
+                     state.since_s)
     return new, jnp.abs(turn) > deg(STALE_TURN_DEG)
+
+
+def reading_interval(state: StaleState, dt, fresh):
+    """(new state, interval s): the seconds since the previous fresh compass reading, this sample's ``dt`` (s)
+    included, and the count restarted where this sample's reading is ``fresh`` (finite, not stale; bool).
+
+    A compass logged slower than the wheels (a 1-Hz magnetometer in a 10-Hz log, NaN between its readings) gives one
+    reading per interval: ``compass_noise.samples_per_measurement`` counts it for the interval it stands for.  Every
+    sample fresh: the interval is ``dt`` itself."""
+    interval = state.since_s + dt
+    return state._replace(since_s=jnp.where(fresh, 0.0, interval)), interval

@@ -19,13 +19,33 @@ filter's constants were fitted on 10-Hz logs (samples 0.096-0.104 s apart, which
 50 Hz: stop 35 measured 0.47 -> 0.79 deg on highway/baseline/101 logged at 50 Hz without this, 0.68 with it)."""
 
 
-def samples_per_measurement(corr_m, distance_m, dt, standing=1e12):
+SPARSE_AFTER_S = 0.105
+"""A 10-Hz log's sample interval at most (0.096-0.104 s): ``samples_per_measurement`` counts a compass reading for the
+samples of at least this length that it stands for."""
+STANDS_FOR_S = 1.0
+"""The longest interval (s) one compass reading stands for: a reading after a dropout is one reading."""
+
+
+def samples_per_measurement(corr_m, distance_m, dt, standing=1e12, reading_dt=None):
     """How many samples make one independent compass measurement: one per ``corr_m`` metres of |distance_m|
     (``standing`` where it is zero: no information from repeating a reading) and at most one per COMPASS_CORR_S
-    seconds of ``dt`` (s; None: not counted in time)."""
+    seconds of ``dt`` (the sample's time step, s; None: not counted in time).
+
+    ``reading_dt`` (s; None: ``dt``) the interval since the previous compass reading (``compass.reading_interval``): a
+    compass logged slower than the wheels (NaN between its readings) is counted per reading interval, and each
+    reading for the log samples it stands for (its interval, at most STANDS_FOR_S, over the sample's, at least
+    SPARSE_AFTER_S), as a logger that held the reading would have it counted.  Counted once per sample, a 1-Hz compass
+    in a 10-Hz log gave the filters a tenth of its information, whose errors are correlated over seconds (independent
+    simulator, diagnosis seeds 1-4 and 28-33: 10-Hz compass 1.1069 deg, 1 Hz held 1.1416, 1 Hz with NaN between 1.2055;
+    docs/tuning.md, stop 78).  A log whose every sample has a reading is counted as before."""
     per = jnp.maximum(1.0, safe_div(corr_m, jnp.abs(distance_m), eps=1e-9, fallback=standing))
-    if dt is not None:
-        per = jnp.maximum(per, safe_div(COMPASS_CORR_S, dt, eps=1e-9, fallback=1.0))
+    if dt is None:
+        return per
+    interval = dt if reading_dt is None else reading_dt
+    per = jnp.maximum(per, safe_div(COMPASS_CORR_S, interval, eps=1e-9, fallback=1.0))
+    if reading_dt is not None:
+        stands_for = jnp.minimum(reading_dt, STANDS_FOR_S) / jnp.maximum(dt, SPARSE_AFTER_S)
+        per = per / jnp.maximum(stands_for, 1.0)
     return per
 
 

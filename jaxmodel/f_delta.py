@@ -92,11 +92,12 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     d_lost = _offset.lost_distance(d_t, odo["dt"])
     offset, clean_weight = _offset.update(params, offset, delta, sigma, d_t, 1.0,
                                           absolute_ok & ~initializing, drifting, tilt, d_lost, drift_significant,
-                                          dt=odo["dt"], young=young)
+                                          dt=odo["dt"], young=young, reading_dt=odo["reading_dt"])
     # |B| against B_E (given, else learned) measures the grade's and the roll's errors (jaxmodel/field_tilt.py), on
     # clean samples.
     field_ok = absolute_ok & ~initializing & compass_ok & ~map_used & (clean_weight > _field_tilt.CLEAN_WEIGHT)
-    offset = _field_tilt.update(params, offset, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference, has_reference)
+    offset = _field_tilt.update(params, offset, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference, has_reference,
+                                odo["reading_dt"])
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
@@ -106,13 +107,13 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     steady, steady_weight, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,
                                                                 absolute_ok & ~initializing, lagging, tilt, d_lost,
                                                                 drift_significant, dt=odo["dt"], young=young,
-                                                                with_lost_restart=True)
+                                                                with_lost_restart=True, reading_dt=odo["reading_dt"])
     # A turn with a compass the steady filter accepts checked the anchor at another heading: ANCHOR_TURN_M metres a
     # radian (from the next sample on).  A rejected one did not (a start on a grade, contradicted after its first turn).
     distance_filtered = distance_filtered + jnp.where(absolute_ok & (steady_weight > 0.5),
                                                       _offset.ANCHOR_TURN_M * jnp.abs(alpha), 0.0)
     steady = _field_tilt.update(steady_params, steady, b_m, tilt, field_ok, d_t, odo["dt"], ln_reference,
-                                has_reference)
+                                has_reference, odo["reading_dt"])
     offset, steady, rate_follows = _follow.restart_together(params, offset, steady, steady_lost_restart, clean_weight,
                                                             drift_significant, calibrated)
     # The calibration confirms a drift by capturing it (``drift_capture.calibrate``); without it a large drift starts

@@ -99,7 +99,7 @@ def roll_reaching_heading(params, tilt, has_reference):
     return tilt[0], jnp.where(has_reference & reads_field(params), tilt[1], 0.0)
 
 
-def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
+def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference, reading_dt=None):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m
     metres and compass_noise.COMPASS_CORR_S seconds), not read beyond FIELD_HARD_GATE sigmas (``measure``'s hard
@@ -110,6 +110,7 @@ def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference):
 
     ok = ok & reads_field(params) & has_reference & (d_t > 0.0) & (b_m > 0.0)
     field_dev = jnp.where(ok, jnp.log(jnp.where(ok, b_m, 1.0)) - ln_reference, 0.0)
-    variance = params.filter_field_sigma ** 2 * samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
+    variance = params.filter_field_sigma ** 2 * samples_per_measurement(params.filter_compass_corr_m, d_t, dt,
+                                                                          reading_dt=reading_dt)
     new = _of.measure(fs, [0, 0, 0, 0, -tilt[1], tilt[0]], field_dev, variance, FIELD_HARD_GATE, hard=True)
     return _of.OffsetState(jnp.where(ok, new.vector, fs.vector))

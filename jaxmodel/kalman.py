@@ -288,25 +288,26 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
     return x, value_once(0.5 * (p + p.T)), d2
 
 
-def _samples_per_measurement(params, distance, dt):
+def _samples_per_measurement(params, distance, dt, reading_dt=None):
     """How many samples make one independent course measurement: one per kf_compass_corr_m of road and at most
     one per compass_noise.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time).
     10-Hz samples (0.096-0.104 s apart) are left as they were; a 50-Hz log of the same highway drive (0.6 m per
     sample against the 10-Hz log's 3 m) no longer counts 1.4 times the compass information."""
-    return jnp.minimum(samples_per_measurement(params.kf_compass_corr_m, distance, dt, standing=1e9), 1e9)
+    return jnp.minimum(samples_per_measurement(params.kf_compass_corr_m, distance, dt, standing=1e9,
+                                               reading_dt=reading_dt), 1e9)
 
 
-def compass_noise(params, e_c, distance, dt=None):
+def compass_noise(params, e_c, distance, dt=None, reading_dt=None):
     """Compass course variance (rad^2) for a sample covering |distance| m over ``dt`` s (see the module doc)."""
     r0 = deg(params.kf_compass_sigma_deg) ** 2 + deg(params.kf_white_sigma_deg) ** 2 + (
         params.kf_compass_ec_weight * e_c) ** 2
-    return r0 * _samples_per_measurement(params, distance, dt)
+    return r0 * _samples_per_measurement(params, distance, dt, reading_dt)
 
 
-def map_noise(params, distance, dt=None):
+def map_noise(params, distance, dt=None, reading_dt=None):
     """Map course variance (rad^2) for a sample covering |distance| m over ``dt`` s, counted as the compass's."""
     r0 = deg(params.kf_map_sigma_deg) ** 2 + deg(params.kf_white_sigma_deg) ** 2
-    return r0 * _samples_per_measurement(params, distance, dt)
+    return r0 * _samples_per_measurement(params, distance, dt, reading_dt)
 
 
 COURSE_STATES = (I_GM, I_DRIFT, I_RAMP)
@@ -472,7 +473,8 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
 
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
                 fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
-                enabled=True, dt_counts=None, held=False, rate_change=0.0, rate_variance=0.0, lost_elsewhere=False):
+                enabled=True, dt_counts=None, held=False, rate_change=0.0, rate_variance=0.0, lost_elsewhere=False,
+                reading_dt=None):
     """One sample (US 4,680,715 claim 1).  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
     dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp; dt_counts: the time
@@ -484,13 +486,16 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     odometer_ok: the odometer's own plausibility of the counts; initialized: H_W has been
     started (1.0); rate_change: the change of the wheel course's rate per metre by a new left/right calibration
     this sample (rad/m, drift_capture.calibrate), which beta^ follows; rate_variance: the variance beta^ is released to
-    (rad^2/m^2); lost_elsewhere: the complementary filter restarted as lost on this sample (see _reacquire).
+    (rad^2/m^2); lost_elsewhere: the complementary filter restarted as lost on this sample (see _reacquire);
+    reading_dt: the seconds since the previous compass reading (compass.reading_interval; dt if None).
     ``enabled`` is static: False (other modes) passes the state through.
     """
     if not enabled:
         return ks, wheel_heading, ks.x, ks.y
     active = computed_once(ks.active > 0.5)
     p0 = initial_covariance(params)
+    # A compass reading's interval beyond this sample's time step (0 where every sample has a reading).
+    reading_gap = 0.0 if reading_dt is None else reading_dt - dt
     dt, speed, dist_used, course_ok = _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, held)
     # 2. DF(V).
     s = params.kf_speed_factor * dist_used
@@ -502,7 +507,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     east = ks.x + s * jnp.sin(course_mid)
     err_u, cov_u, restarted, watch = _course_update(
         params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c, map_heading,
-        map_used, lost_elsewhere)
+        map_used, lost_elsewhere, reading_gap)
     err_u, cov_u, fix_ok, fix_rejected, reposition = _fix_update(params, ks, err_u, cov_u, active, north, east,
                                                                  fix_east, fix_north, fix_valid, restarted)
     # Feed the position corrections C(RN), C(RE) back and reset their error states.
@@ -561,9 +566,9 @@ def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, r
 
 
 def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c,
-                   map_heading, map_used, lost_elsewhere):
+                   map_heading, map_used, lost_elsewhere, reading_gap=0.0):
     """Step 4a, the course update, and the re-acquisition after it (``_reacquire``).  Returns (err, cov,
-    restarted, the watch fields of KalmanState)."""
+    restarted, the watch fields of KalmanState).  ``reading_gap`` (s): the compass reading's interval beyond ``dt``."""
     # The compass course (H_COMPASS) or, where the map-heading selector of
     # US 4,734,863 FIG. 8F chose the street heading (course support data of the seed's input
     # means), the map course (H_MAP: the compass's colored error dth1 is not in it).
@@ -572,7 +577,8 @@ def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, c
     h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
     course_meas = jnp.where(map_used, map_heading, compass_heading)
     nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
-    r_c = jnp.where(map_used, map_noise(params, s, dt), compass_noise(params, e_c, s, dt))
+    reading_dt = dt + reading_gap
+    r_c = jnp.where(map_used, map_noise(params, s, dt, reading_dt), compass_noise(params, e_c, s, dt, reading_dt))
     valid_c = active & (compass_ok | map_used)
     use_c = valid_c & (jnp.abs(s) > 0.0)
     err_u, cov_u, d2_c = update(err_p, cov_p, nu_c[None], h_course, r_c[None, None], use_c, params.kf_gate_sigma,

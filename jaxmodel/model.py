@@ -332,6 +332,9 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         stale, held = _compass.stale_check(stale, sample.compass_x, sample.compass_y, alpha)
         sample = sample._replace(compass_x=jnp.where(held, jnp.nan, sample.compass_x),
                                  compass_y=jnp.where(held, jnp.nan, sample.compass_y))
+        stale, reading_dt = _compass.reading_interval(
+            stale, odo["dt"], jnp.isfinite(sample.compass_x) & jnp.isfinite(sample.compass_y))
+        odo = dict(odo, reading_dt=reading_dt)
 
     # FIG. 8A / 8C: compass heading, field magnitude, error bound (B_E per heading, claim 13).
     state, hard_iron, h_c_raw, b_m, compass_ok, hard_iron_restart = _compass_stage(params, state, sample, config,
@@ -401,7 +404,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman",
         rate_change=rate_change, rate_variance=_kalman.released_rate_variance(params, offset, kalman_before),
-        lost_elsewhere=fd.get("lost_restart", False))
+        lost_elsewhere=fd.get("lost_restart", False), reading_dt=odo.get("reading_dt"))
     if config.mode == "kalman":
         kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.align_after(
             params, kalman_state, kalman_heading, started, realigned, rotation, rotation_sigma,

@@ -338,7 +338,7 @@ def young(params, distance_filtered):
 
 
 def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_lost=None, drift_significant=None,
-           dt=None, young=False, with_lost_restart=False):
+           dt=None, young=False, with_lost_restart=False, reading_dt=None):
     """Robust measurement update with DELTA (rad) of white sigma (rad) per kf_compass_corr_m metres.
 
     DELTA = delta + c + sin(psi_m) g + cos(psi_m) r + white noise (h = [1, 0, 1, 0, sin, cos]); ``tilt`` = (sin(psi_m),
@@ -374,7 +374,7 @@ def update(params, fs, delta_meas, sigma, d_t, factor, ok, drifting, tilt, d_los
     z2 = disturbance ** 2 / (p_hh + s2)
     # Information counted once per filter_compass_corr_m metres (no gain while standing still) and at most once per
     # compass_noise.COMPASS_CORR_S seconds: how many such samples make one compass measurement.
-    per_measurement = samples_per_measurement(params.filter_compass_corr_m, d_t, dt)
+    per_measurement = samples_per_measurement(params.filter_compass_corr_m, d_t, dt, reading_dt=reading_dt)
     # A compass rejected for long while the wheels do not drift has a persistent error of its own
     # (a shifted hard iron, a long grade): without this its soft-gated samples creep into F-DELTA.
     is_lost = lost(params, disturbance)
