@@ -290,7 +290,8 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
 
 def _samples_per_measurement(params, distance, dt, reading_dt=None):
     """How many samples make one independent course measurement: one per kf_compass_corr_m of road and at most
-    one per compass_noise.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time).
+    one per compass_noise.COMPASS_CORR_S seconds (``dt`` the sample's time step, s; None: not counted in time), a
+    reading for the samples it stands for (``reading_dt``, compass_noise.samples_per_measurement).
     10-Hz samples (0.096-0.104 s apart) are left as they were; a 50-Hz log of the same highway drive (0.6 m per
     sample against the 10-Hz log's 3 m) no longer counts 1.4 times the compass information."""
     return jnp.minimum(samples_per_measurement(params.kf_compass_corr_m, distance, dt, standing=1e9,
@@ -494,8 +495,6 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
         return ks, wheel_heading, ks.x, ks.y
     active = computed_once(ks.active > 0.5)
     p0 = initial_covariance(params)
-    # A compass reading's interval beyond this sample's time step (0 where every sample has a reading).
-    reading_gap = 0.0 if reading_dt is None else reading_dt - dt
     dt, speed, dist_used, course_ok = _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, held)
     # 2. DF(V).
     s = params.kf_speed_factor * dist_used
@@ -507,7 +506,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     east = ks.x + s * jnp.sin(course_mid)
     err_u, cov_u, restarted, watch = _course_update(
         params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c, map_heading,
-        map_used, lost_elsewhere, reading_gap)
+        map_used, lost_elsewhere, reading_dt)
     err_u, cov_u, fix_ok, fix_rejected, reposition = _fix_update(params, ks, err_u, cov_u, active, north, east,
                                                                  fix_east, fix_north, fix_valid, restarted)
     # Feed the position corrections C(RN), C(RE) back and reset their error states.
@@ -566,9 +565,9 @@ def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, r
 
 
 def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, compass_heading, compass_ok, e_c,
-                   map_heading, map_used, lost_elsewhere, reading_gap=0.0):
+                   map_heading, map_used, lost_elsewhere, reading_dt=None):
     """Step 4a, the course update, and the re-acquisition after it (``_reacquire``).  Returns (err, cov,
-    restarted, the watch fields of KalmanState).  ``reading_gap`` (s): the compass reading's interval beyond ``dt``."""
+    restarted, the watch fields of KalmanState).  ``reading_dt`` (s): the compass reading's interval (None: ``dt``)."""
     # The compass course (H_COMPASS) or, where the map-heading selector of
     # US 4,734,863 FIG. 8F chose the street heading (course support data of the seed's input
     # means), the map course (H_MAP: the compass's colored error dth1 is not in it).
@@ -577,7 +576,6 @@ def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, c
     h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
     course_meas = jnp.where(map_used, map_heading, compass_heading)
     nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
-    reading_dt = dt + reading_gap
     r_c = jnp.where(map_used, map_noise(params, s, dt, reading_dt), compass_noise(params, e_c, s, dt, reading_dt))
     valid_c = active & (compass_ok | map_used)
     use_c = valid_c & (jnp.abs(s) > 0.0)
