@@ -153,6 +153,20 @@ def test_a_counter_is_unwrapped_around_the_increment_the_wheels_predict():
     assert float(decode_counter(100.0, 4090.0, 4096.0, 0.0)) == 106.0  # an ordinary wrap, as before
 
 
+def _rewrite_rows(path, change, out):
+    """The drive log at ``path`` with ``change(row index, row dict)`` applied to every row in place, written to
+    ``out`` (which may be ``path``); returns ``out``."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for i, r in enumerate(rows):
+        change(i, r)
+    with open(out, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return out
+
+
 @pytest.mark.slow
 def test_an_8_bit_counter_logged_at_1_hz_is_unwrapped(tmp_path, monkeypatch):
     """The independent simulator's urban seed 41 at 1 Hz with its counters wrapped at 256 (the file says so): above
@@ -161,14 +175,11 @@ def test_an_8_bit_counter_logged_at_1_hz_is_unwrapped(tmp_path, monkeypatch):
     predict: 3.84 deg (as with its 16-bit counter) and 2.73 deg."""
     monkeypatch.setattr(independent_sim, "LOG_EVERY", 50)
     path, params_path = independent_sim.make_drive("urban", 41, tmp_path)
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
+
+    def wrapped_at_256(i, r):
         r["left_pulses"], r["right_pulses"] = (str(int(float(r[c])) % 256) for c in ("left_pulses", "right_pulses"))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+
+    _rewrite_rows(path, wrapped_at_256, path)
     params = unidentified_params(params_path)._replace(counter_modulus=jnp.asarray(256.0))
     assert np.max(np.asarray(read_drive(path).inputs.left_pulses)) < 256
     for mode, limit in (("odometer", 6.0), ("complementary", 3.5)):
@@ -210,16 +221,12 @@ def test_the_reading_interval_counts_the_seconds_since_the_last_fresh_reading():
 
 def _compass_every(path, every, out):
     """The drive at ``path`` with only every ``every``-th compass reading kept (NaN between), written to ``out``."""
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for i, r in enumerate(rows):
+
+    def thinned(i, r):
         if i % every:
             r["compass_x"] = r["compass_y"] = "nan"
-    with open(out, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return out
+
+    return _rewrite_rows(path, thinned, out)
 
 
 @pytest.mark.slow
