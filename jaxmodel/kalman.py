@@ -92,7 +92,7 @@ from . import fix_alignment as _align
 from .angles import safe_div, wrap
 from .fix_alignment import AlignmentState, init_alignment_state
 from .compass_noise import samples_per_measurement
-from .kalman_update import _left, _mm, update
+from .kalman_update import small_matmul, sparse_left_matmul, update
 from .offset_filter import UNINITIALIZED_BOUND, lost, lost_distance, supported_bound
 from .packed import computed_once, value_once
 from .params import deg
@@ -213,9 +213,10 @@ def predict(err, cov, phi, q):
     """x^- = Phi x with the position rows' course coupling removed (the corrected course already
     applies the estimated course error, so the estimated position error does not grow from it);
     P^- = Phi P Phi^T + Q, symmetrized.  Phi must have the sparsity of PHI_PATTERN."""
-    x = _left(PHI_PATTERN, phi, err)
+    x = sparse_left_matmul(PHI_PATTERN, phi, err)
     x = x.at[I_N].set(err[I_N]).at[I_E].set(err[I_E])
-    p = _left(PHI_PATTERN, phi, _left(PHI_PATTERN, phi, cov).T) + q  # Phi (Phi P)^T = Phi P Phi^T
+    # Phi (Phi P)^T = Phi P Phi^T
+    p = sparse_left_matmul(PHI_PATTERN, phi, sparse_left_matmul(PHI_PATTERN, phi, cov).T) + q
     return x, 0.5 * (p + p.T)
 
 
@@ -506,7 +507,7 @@ def _course_update(params, ks, err_p, cov_p, p0, active, s, dt, wheel_heading, c
     # with the dth1 entry zeroed, so the static pattern is H_COMPASS's and the entry is traced.
     h_course = jnp.where(map_used, jnp.asarray(H_MAP), jnp.asarray(H_COMPASS))
     course_meas = jnp.where(map_used, map_heading, compass_heading)
-    nu_c = wrap(wrap(wheel_heading - course_meas) - _mm(h_course[0], err_p))
+    nu_c = wrap(wrap(wheel_heading - course_meas) - small_matmul(h_course[0], err_p))
     r_c = jnp.where(map_used, map_noise(params, s, dt, reading_dt), compass_noise(params, e_c, s, dt, reading_dt))
     valid_c = active & (compass_ok | map_used)
     use_c = valid_c & (jnp.abs(s) > 0.0)

@@ -1,9 +1,9 @@
 """The Kalman filter's measurement update on small fixed-size matrices, unrolled for XLA:CPU.
 
 ``update`` is the Joseph-form update with a soft innovation gate that jaxmodel/kalman.py (US 4,680,715) runs for the
-compass, the map and the fixes; ``_mm`` and ``_left`` are the small products it and ``kalman.predict`` are written in
-(sums of broadcast products, no dot and no reduce: see ``_mm``), ``_inv`` the closed-form inverse of the innovation
-covariance (one or two measurements).
+compass, the map and the fixes; ``small_matmul`` and ``sparse_left_matmul`` are the small products it and
+``kalman.predict`` are written in (sums of broadcast products, no dot and no reduce: see ``small_matmul``), ``_inv``
+the closed-form inverse of the innovation covariance (one or two measurements).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ MAX_GATE_SCALE = 1.0e12
 """Largest inflation of R by the soft gate (keeps K R K^T finite for absurd innovations)."""
 
 
-def _mm(a, b):
+def small_matmul(a, b):
     """Product of small matrices (1-D operands as in ``@``), unrolled over the inner dimension.
 
     Written as a sum of broadcast products with no dot or reduce: under vmap, XLA:CPU turns
@@ -31,9 +31,9 @@ def _mm(a, b):
     return sum(a[:, k, None] * b[None, k, :] for k in range(a.shape[1]))
 
 
-def _left(pattern, a, m):
+def sparse_left_matmul(pattern, a, m):
     """a @ m for a small matrix ``a`` whose nonzeros lie in the static bool ``pattern``: each row
-    a sum of scaled rows of m (no dot, no reduce; see _mm)."""
+    a sum of scaled rows of m (no dot, no reduce; see small_matmul)."""
     rows = []
     for i in range(pattern.shape[0]):
         terms = [a[i, j] * m[j] for j in range(pattern.shape[1]) if pattern[i, j]]
@@ -67,19 +67,19 @@ def update(err, cov, nu, h, r, mask, gate, pattern=None):
     # XLA:CPU otherwise recomputes their chains (the measurement's, its noise model's) per element; so does P's.  Not
     # K: made a value of its own, it changed 12 % of the headings by 1 ulp (how XLA contracts K nu + x) for 10 % speed.
     nu, r = value_once(nu), value_once(r)
-    hp = _left(pattern, hj, cov)                       # H P, (m, N_STATES)
-    hph = _left(pattern, hj, hp.T)                     # H P H^T, (m, m)
+    hp = sparse_left_matmul(pattern, hj, cov)  # H P, (m, N_STATES)
+    hph = sparse_left_matmul(pattern, hj, hp.T)  # H P H^T, (m, m)
     s0 = hph + r
-    d2 = value_once(_mm(_mm(nu, _inv(s0)), nu))
+    d2 = value_once(small_matmul(small_matmul(nu, _inv(s0)), nu))
     scale = value_once(jnp.where(gate > 0.0, jnp.clip(d2 / jnp.where(gate > 0.0, gate, 1.0) ** 2, 1.0, MAX_GATE_SCALE),
                                  1.0))
     s = hph + scale * r
-    k = _mm(hp.T, _inv(s))                             # (N_STATES, m)
+    k = small_matmul(hp.T, _inv(s))  # (N_STATES, m)
     k = jnp.where(mask, k, 0.0)
-    x = err + _mm(k, nu)
+    x = err + small_matmul(k, nu)
     # Joseph form (I - K H) P (I - K H)^T + K R K^T, evaluated in factored order with rank-m
     # products (A = I - K H): AP = P - K (H P), then AP A^T = AP - (AP H^T) K^T.
-    ap = cov - _mm(k, hp)
-    aph = _left(pattern, hj, ap.T).T                   # AP H^T, (N_STATES, m)
-    p = ap - _mm(aph, k.T) + scale * _mm(_mm(k, r), k.T)
+    ap = cov - small_matmul(k, hp)
+    aph = sparse_left_matmul(pattern, hj, ap.T).T  # AP H^T, (N_STATES, m)
+    p = ap - small_matmul(aph, k.T) + scale * small_matmul(small_matmul(k, r), k.T)
     return x, value_once(0.5 * (p + p.T)), d2
