@@ -4,7 +4,8 @@ The robust F-DELTA (``offset_filter``) keeps its six states and the upper triang
 of one packed vector (``packed.py``).  Inside the vmapped scan XLA:CPU runs each tiny matmul as its own kernel, and
 a dense (5, 5) form on broadcasts was no faster (docs/tuning.md, "Throughput, stop 22"), so its algebra is written
 on nested lists of scalars.  Rows given as Python numbers (the structural 0s and 1s of a measurement vector) emit no
-operation.  The Kalman mode (``kalman.py``) keeps a dense covariance and does not use this.
+operation.  The Kalman mode (``kalman.py``) keeps a dense covariance and does not use this: its algebra, unrolled
+over small dense matrices instead, is ``kalman_update.py``.
 """
 
 from __future__ import annotations
