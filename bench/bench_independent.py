@@ -17,11 +17,14 @@ scenarios.py or sensors.py).
 
     python bench/bench_independent.py [SEED ...] [--kinds urban,mixed] [--clean] [--hide-mismatch]
         [--work-dir /tmp/indep/bench] [--disable anomalies,hills] [--extra-args "..."] [--ratio-off-ppm E]
+        [--no-vehicle]
 
 --hide-mismatch gives odocompass the tyres' mean distance per pulse on both wheels (what a user who has
 not measured the mismatch has), so the left/right calibration must find it; the table then also prints
 each drive's final dpp_ratio less the true dpp_right / dpp_left.  --ratio-off-ppm E gives it the tyres' own dpp but
-the right one E ppm off (a file a little off the tyres: docs/tuning.md, stops 69-70).
+the right one E ppm off (a file a little off the tyres: docs/tuning.md, stops 69-70).  --no-vehicle gives it no
+vehicle parameters at all, only the counters' modulus and the compass's calibration (the nominal vehicle:
+docs/tuning.md, stop 80).
 """
 from __future__ import annotations
 
@@ -117,9 +120,11 @@ def main(argv=None):
     ap.add_argument("--ratio-off-ppm", type=float, default=0.0,
                     help="the parameter file's dpp_right this many ppm off the tyres' (the heading must follow the "
                          "small drift it leaves)")
+    ap.add_argument("--no-vehicle", action="store_true",
+                    help="no vehicle parameters in the file (P, B, T_F, T_R, a, dpp): the nominal vehicle")
     a = ap.parse_args(argv)
-    if a.hide_mismatch and a.ratio_off_ppm:
-        ap.error("--hide-mismatch and --ratio-off-ppm change the same parameters: give one")
+    if sum((a.hide_mismatch, bool(a.ratio_off_ppm), a.no_vehicle)) > 1:
+        ap.error("--hide-mismatch, --ratio-off-ppm and --no-vehicle change the same parameters: give one")
     cli = find_cli()
     kinds = [k for k in a.kinds.split(",") if k]
     modes = [m for m in a.modes.split(",") if m]
@@ -142,6 +147,8 @@ def main(argv=None):
                 params = sim.write_hidden_mismatch_params(params)
             if a.ratio_off_ppm:
                 params = sim.write_ratio_off_params(params, a.ratio_off_ppm)
+            if a.no_vehicle:
+                params = sim.write_no_vehicle_params(params)
             for mode in modes:
                 out = drive[:-4] + f".est_{mode}.csv"
                 rc, lines, dt, cmd = run_estimate(cli, drive, params, out, mode, extra)
@@ -174,6 +181,8 @@ def main(argv=None):
         title += "  [tyre mismatch hidden: the calibration finds it]"
     if a.ratio_off_ppm:
         title += f"  [file's dpp_right {a.ratio_off_ppm:+g} ppm off]"
+    if a.no_vehicle:
+        title += "  [no vehicle parameters: the nominal vehicle]"
     if dis:
         title += "  [disabled: " + ",".join(dis) + "]"
     print(title)
