@@ -41,7 +41,8 @@ The scale state k is the error of eq. (14)'s wheel turn when the vehicle's P, B,
 are not those of the vehicle (not identified, or a wheel model that is not the seeds'): every
 turn then moves F-DELTA by k alpha, and with k as white turn noise alone the filter chased those
 jumps through its rate state (nominal parameters on the tuning drives: 20 deg RMSE; 3.7 deg with
-k, prior sigma ``filter_scale_sigma0`` 0.05; docs/tuning.md).  Off by default (sigma0 0): with
+k, prior sigma ``filter_scale_sigma0`` 0.05; 0.15 for a vehicle nobody gave since stop 80, ``UNIDENTIFIED_VEHICLE``;
+docs/tuning.md).  Off by default (sigma0 0): with
 exact parameters it costs 5-11 %, and one tuning-side 2.5 % mismatch drive went 1 -> 9.7 deg.
 
 Two filters, one heading.  The rate that makes this filter follow a tyre mismatch before the
