@@ -429,14 +429,17 @@ def write_ratio_off_params(params_path, ppm):
     return _write_beside(params_path, "ratio_off", dict(params, dpp_right=params["dpp_right"] * (1.0 + 1e-6 * ppm)))
 
 
+NOT_VEHICLE_KEYS = ("counter_modulus", "variation_deg", "X0", "Y0", "rotation_deg", "field_magnitude")
+"""The parameter file's keys that are not the vehicle's: the counters' modulus and the compass's calibration."""
+
+
 def write_no_vehicle_params(params_path):
     """Beside the drive's parameter file, a copy without the vehicle's parameters (P, B, T_F, T_R, a, dpp_left,
     dpp_right, sensor_axle): only the counters' modulus and the compass's calibration (a user who never identified the
     vehicle; ``odocompass estimate`` then runs the nominal vehicle, ``jaxmodel.for_unidentified_vehicle``),
     ``TAG.no_vehicle.params.json``.  Returns its path."""
     params = _read_params(params_path)
-    keep = ("counter_modulus", "variation_deg", "X0", "Y0", "rotation_deg", "field_magnitude")
-    return _write_beside(params_path, "no_vehicle", {k: v for k, v in params.items() if k in keep})
+    return _write_beside(params_path, "no_vehicle", {k: v for k, v in params.items() if k in NOT_VEHICLE_KEYS})
 
 
 def _read_params(params_path):

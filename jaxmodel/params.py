@@ -354,8 +354,8 @@ nominal parameters on the matrix 20.2 -> 3.7 deg on the tuning seeds, 16.0 -> 2.
 seeds; off by default, since with the vehicle's own parameters it costs 5-11 %).  Its prior sigma 0.15, not 0.05
 (stop 80, nominal parameters, the matrix's 15 conditions with a compass: tuning seeds 101-103 1.886 -> 1.238 deg,
 58 -> 99 of 180 met; held-out 104-106 1.310 -> 1.293 deg; the independent simulator's diagnosis drives, whose dpp
-is up to 2.4x the nominal, 10.35 -> 7.39 deg): a vehicle nobody gave is not within a few per cent of the nominal.  With it on, the tilt
-state's sigma stays at 2 deg (stop 25, nominal parameters: tuning seeds 101-103 2.41 -> 2.25 deg, held-out
+is up to 2.4x the nominal, 10.35 -> 7.39 deg): a vehicle nobody gave is not within a few per cent of the nominal.
+With it on, the tilt state's sigma stays at 2 deg (stop 25, nominal parameters: tuning seeds 101-103 2.41 -> 2.25 deg, held-out
 104-106 1.79 -> 1.71 deg against the default 3 deg), as the scale state explains part of what the tilt did.
 The rejected compass is hardened against over 699 m as before stop 26, not the default 300 m (nominal parameters:
 101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with

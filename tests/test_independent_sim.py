@@ -55,17 +55,16 @@ def test_a_parameter_file_a_little_off_changes_only_the_right_wheels_dpp(tmp_pat
     assert {k: v for k, v in off.items() if k != "dpp_right"} == {k: v for k, v in true.items() if k != "dpp_right"}
 
 
-
 def test_a_file_without_the_vehicle_keeps_the_compass_calibration_and_runs_the_nominal_vehicle(tmp_path):
     _, params_path = sim.make_drive("highway", 3, tmp_path, duration=30.0)
     true = json.loads(Path(params_path).read_text())
     bare_path = sim.write_no_vehicle_params(params_path)
     bare = json.loads(Path(bare_path).read_text())
     assert not set(bare) & {*jm.VEHICLE_KEYS, "sensor_axle"}
-    assert bare == {k: true[k] for k in ("counter_modulus", "variation_deg", "X0", "Y0", "rotation_deg",
-                                         "field_magnitude")}
+    assert bare == {k: true[k] for k in sim.NOT_VEHICLE_KEYS}
     params, extra = checked_params(bare_path)
     assert jm.for_unidentified_vehicle(params, extra["keys"])[1]  # odocompass estimate's nominal vehicle
+
 
 @pytest.mark.slow
 def test_grades_are_not_taken_for_hard_iron_but_an_offset_is(tmp_path):

@@ -255,8 +255,8 @@ def test_fig8_order_map_does_not_collapse_the_bound():
 def test_turn_scale_state_holds_a_vehicle_that_was_not_identified():
     """With the nominal P, B, T_F, T_R, a and dpp instead of the vehicle's (13 % off in dpp), every turn
     turns the wheel heading ~10 % wrong.  The offset filter's scale state k (filter_scale_sigma0 0.15 in
-    jm.UNIDENTIFIED_VEHICLE since stop 80, 0.05 before; off by default) learns that; without it the filter chases the jumps through its rate state (tuning drives:
-    20 deg RMSE; with k 3.7 deg).  ``odocompass estimate`` switches it on with jm.UNIDENTIFIED_VEHICLE, which
+    jm.UNIDENTIFIED_VEHICLE since stop 80, 0.05 before; off by default) learns that; without it the filter
+    chases the jumps through its rate state (tuning drives: 20 deg RMSE; with k 3.7 deg).  ``odocompass estimate`` switches it on with jm.UNIDENTIFIED_VEHICLE, which
     keeps the tilt sigma at 2 deg: with the default 3 deg (stop 25) this drive was 2.28 deg."""
     drive = sc.make_drive("urban", "baseline", 201, duration_s=450.0)
     nominal = {k: jm.PARAMETER_SPECS[k].default for k in jm.VEHICLE_KEYS}
