@@ -62,6 +62,17 @@ def checked_params(path, label: str = "--params"):
     return params, extra
 
 
+def estimation_params(path, label: str = "--params"):
+    """(Params, extra, nominal_vehicle): ``checked_params`` for running the estimator, with the turn-scale state of
+    a vehicle nobody gave switched on where the file sets no vehicle parameter (``jaxmodel.for_unidentified_vehicle``).
+    The one place that decides it, for ``estimate`` and ``fleet evaluate`` alike."""
+    import jaxmodel
+
+    params, extra = checked_params(path, label)
+    params, nominal_vehicle = jaxmodel.for_unidentified_vehicle(params, extra["keys"])
+    return params, extra, nominal_vehicle
+
+
 def _times(t: np.ndarray) -> str:
     shown = ", ".join(f"{v:.1f}" for v in t[:MAX_TIMES_SHOWN])
     more = f" and {t.size - MAX_TIMES_SHOWN} more" if t.size > MAX_TIMES_SHOWN else ""

@@ -109,15 +109,14 @@ def main(args) -> int:
     import jaxmodel
 
     from . import console
-    from .diagnostics import checked_params, drive_warnings
+    from .diagnostics import drive_warnings, estimation_params
     from .outputs import atomic, check_output_file
 
     out_path = Path(args.out)
     drive_path = Path(args.drive)
     _format_of(out_path)  # refuse an unknown output extension before the work
     check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
-    params, extra = checked_params(args.params)
-    params, nominal_vehicle = jaxmodel.for_unidentified_vehicle(params, extra["keys"])
+    params, _extra, nominal_vehicle = estimation_params(args.params)
     drive = read_drive(drive_path)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track, robust=getattr(args, "filter", "robust") == "robust",

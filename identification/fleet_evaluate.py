@@ -133,13 +133,14 @@ def evaluate_task(payload: dict) -> list[dict]:
 
 
 def _vehicle_params(params_arg: Path, vehicle_ids) -> dict[str, tuple]:
-    """vehicle_id -> (params dict or None, file, error) from one file or a folder of <vehicle_id>.json."""
+    """vehicle_id -> (params dict or None, file, error) from one file or a folder of <vehicle_id>.json; a file
+    without the vehicle's parameters runs the nominal vehicle with its turn scale learned, as ``estimate`` does."""
     import jaxmodel
 
-    from .diagnostics import checked_params
+    from .diagnostics import estimation_params
 
     if not params_arg.is_dir():
-        p, _ = checked_params(params_arg)
+        p, _, _ = estimation_params(params_arg)
         d = jaxmodel.params_to_dict(p)
         return {vid: (d, str(params_arg), None) for vid in vehicle_ids}
     out = {}
@@ -149,7 +150,7 @@ def _vehicle_params(params_arg: Path, vehicle_ids) -> dict[str, tuple]:
             out[vid] = (None, str(f), f"{f}: no parameter file for vehicle {vid}")
             continue
         try:
-            p, _ = checked_params(f)
+            p, _, _ = estimation_params(f)
             out[vid] = (jaxmodel.params_to_dict(p), str(f), None)
         except Exception as exc:  # noqa: BLE001 - a bad parameter file: that vehicle's drives are errors
             text = " ".join(str(exc).split())

@@ -267,3 +267,24 @@ def test_parquet_manifest_and_fingerprint(tmp_path):
     assert fp == fingerprint(vehicles["a"], settings) and fp != fingerprint(vehicles["a"], {"fit": ["a"]})
     (tmp_path / "d1.csv").write_text("changed")  # another size: the vehicle is fitted again
     assert fingerprint(vehicles["a"], settings) != fp
+
+
+def test_fleet_evaluate_runs_a_vehicle_nobody_gave_as_estimate_does(tmp_path):
+    """A parameter file without the vehicle (only the compass's calibration) switches on the turn-scale state of
+    ``jaxmodel.UNIDENTIFIED_VEHICLE`` in ``fleet evaluate`` as in ``estimate`` (one place decides:
+    diagnostics.estimation_params); a file with the vehicle keeps the defaults."""
+    from identification.fleet_evaluate import _vehicle_params
+
+    (tmp_path / "car-01.json").write_text(json.dumps({"variation_deg": 2.0}))
+    (tmp_path / "car-02.json").write_text(json.dumps({"P": 0.125, "variation_deg": 2.0}))
+    per_vehicle = _vehicle_params(tmp_path, ["car-01", "car-02"])
+    nobody, _, err1 = per_vehicle["car-01"]
+    given, _, err2 = per_vehicle["car-02"]
+    assert err1 is None and err2 is None
+    for key, value in jm.UNIDENTIFIED_VEHICLE.items():
+        assert nobody[key] == pytest.approx(value)
+    default = jm.params_to_dict(jm.make_params())
+    assert given["filter_scale_sigma0"] == pytest.approx(default["filter_scale_sigma0"])
+    assert default["filter_scale_sigma0"] != pytest.approx(jm.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"])
+    single = _vehicle_params(tmp_path / "car-01.json", ["car-07"])["car-07"][0]
+    assert single["filter_scale_sigma0"] == pytest.approx(jm.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"])
