@@ -108,7 +108,7 @@ def main(args) -> int:
     the table is written atomically; warnings (diagnostics.drive_warnings) on stderr."""
     import jaxmodel
 
-    from . import console
+    from . import console, wheel_scales
     from .diagnostics import drive_warnings, estimation_params
     from .outputs import atomic, check_output_file
 
@@ -118,6 +118,7 @@ def main(args) -> int:
     check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
     params, _extra, nominal_vehicle = estimation_params(args.params)
     drive = read_drive(drive_path)
+    params, scales = wheel_scales.for_drive(params, nominal_vehicle, drive, args.mode)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track, robust=getattr(args, "filter", "robust") == "robust",
                              hard_iron=getattr(args, "hard_iron", "off") == "on")
@@ -136,6 +137,8 @@ def main(args) -> int:
                      f"{args.params or 'the built-in defaults'}: the nominal vehicle, with the wheel turn's scale "
                      f"error learned online (filter_scale_sigma0 {sigma0:g}); "
                      f"odocompass identify finds the vehicle's own")
+        if args.mode != "compass":
+            console.info(wheel_scales.describe(scales, params))
     for w in drive_warnings(drive, params, cols, mode=args.mode):
         console.warn(w)
     n_compass, n_odometer = skipped_counts(cols)

@@ -85,6 +85,7 @@ def evaluate_task(payload: dict) -> list[dict]:
 
     import jaxmodel
 
+    from . import wheel_scales
     from .drive_log import read_drive, stack_drives
     from .fleet_fit import bucket_length, pad_batch, stacked_params
 
@@ -101,7 +102,9 @@ def evaluate_task(payload: dict) -> list[dict]:
             d = read_drive(item["path"])
             if d.n_samples < 2:
                 raise ValueError(f"{item['path']}: only {d.n_samples} sample(s)")
-            ready.append((row, d, jaxmodel.make_params(item["params"])))
+            params, _scales = wheel_scales.for_drive(jaxmodel.make_params(item["params"]),
+                                                     item.get("nominal_vehicle", False), d, config.mode)
+            ready.append((row, d, params))
         except Exception as exc:  # noqa: BLE001 - a missing, corrupt or bad log: this drive's error
             text = " ".join(str(exc).split()) or type(exc).__name__
             if isinstance(exc, FileNotFoundError):
@@ -133,28 +136,29 @@ def evaluate_task(payload: dict) -> list[dict]:
 
 
 def _vehicle_params(params_arg: Path, vehicle_ids) -> dict[str, tuple]:
-    """vehicle_id -> (params dict or None, file, error) from one file or a folder of <vehicle_id>.json; a file
-    without the vehicle's parameters runs the nominal vehicle with its turn scale learned, as ``estimate`` does."""
+    """vehicle_id -> (params dict or None, file, error, nominal_vehicle) from one file or a folder of
+    <vehicle_id>.json; a file without the vehicle's parameters runs the nominal vehicle as ``estimate`` does (its turn
+    scale learned, its distances per pulse from each drive's compass: wheel_scales.for_drive)."""
     import jaxmodel
 
     from .diagnostics import estimation_params
 
     if not params_arg.is_dir():
-        p, _, _ = estimation_params(params_arg)
+        p, _, nominal = estimation_params(params_arg)
         d = jaxmodel.params_to_dict(p)
-        return {vid: (d, str(params_arg), None) for vid in vehicle_ids}
+        return {vid: (d, str(params_arg), None, nominal) for vid in vehicle_ids}
     out = {}
     for vid in vehicle_ids:
         f = params_arg / f"{vid}.json"
         if not f.is_file():
-            out[vid] = (None, str(f), f"{f}: no parameter file for vehicle {vid}")
+            out[vid] = (None, str(f), f"{f}: no parameter file for vehicle {vid}", False)
             continue
         try:
-            p, _, _ = estimation_params(f)
-            out[vid] = (jaxmodel.params_to_dict(p), str(f), None)
+            p, _, nominal = estimation_params(f)
+            out[vid] = (jaxmodel.params_to_dict(p), str(f), None, nominal)
         except Exception as exc:  # noqa: BLE001 - a bad parameter file: that vehicle's drives are errors
             text = " ".join(str(exc).split())
-            out[vid] = (None, str(f), text if str(f) in text else f"{f}: {text}")
+            out[vid] = (None, str(f), text if str(f) in text else f"{f}: {text}", False)
     return out
 
 
@@ -192,10 +196,10 @@ def main(args) -> int:
     per_vehicle = _vehicle_params(params_arg, list(vehicles))
     items = []
     for vid, veh in vehicles.items():
-        params, pfile, err = per_vehicle[vid]
+        params, pfile, err, nominal = per_vehicle[vid]
         for p, role in veh.drives:
             items.append({"vehicle_id": vid, "path": str(p), "role": role, "params": params, "params_file": pfile,
-                          "error": err, "size": veh.size_hint()})
+                          "nominal_vehicle": nominal, "error": err, "size": veh.size_hint()})
     order = {(it["vehicle_id"], it["path"]): k for k, it in enumerate(items)}
     items_sorted = sorted(items, key=lambda it: _size(it["path"]))
     batch = max(1, int(args.batch))

@@ -278,9 +278,9 @@ def test_fleet_evaluate_runs_a_vehicle_nobody_gave_as_estimate_does(tmp_path):
     (tmp_path / "car-01.json").write_text(json.dumps({"variation_deg": 2.0}))
     (tmp_path / "car-02.json").write_text(json.dumps({"P": 0.125, "variation_deg": 2.0}))
     per_vehicle = _vehicle_params(tmp_path, ["car-01", "car-02"])
-    nobody, _, err1 = per_vehicle["car-01"]
-    given, _, err2 = per_vehicle["car-02"]
-    assert err1 is None and err2 is None
+    nobody, _, err1, nominal1 = per_vehicle["car-01"]
+    given, _, err2, nominal2 = per_vehicle["car-02"]
+    assert err1 is None and err2 is None and nominal1 and not nominal2
     for key, value in jm.UNIDENTIFIED_VEHICLE.items():
         assert nobody[key] == pytest.approx(value)
     default = jm.params_to_dict(jm.make_params())

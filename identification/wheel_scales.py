@@ -1,0 +1,154 @@
+"""The wheels' distance per pulse found from the drive's own compass, for a vehicle nobody gave.
+
+Without the vehicle's parameters the estimator runs the nominal vehicle (``jaxmodel.for_unidentified_vehicle``),
+whose distance per pulse may be far from the vehicle's: another simulator's vehicles had 0.017-0.052 m against the
+nominal 0.02, and tyres 0-1.5 % apart, so the nominal wheels turned 130 deg in a minute of straight road and read a
+96 deg turn as 44 (docs/tuning.md, stops 80-81).  The turn scale state learns a few per cent online; a factor of two
+it does not.
+
+Over windows of ``window_s`` seconds the change of the compass heading H_C (US 4,734,863 FIG. 8A, the model's own
+compass mode) is the wheels' turn, US 4,788,645 eq. (8), with the counts N_L, N_R of the window:
+
+    dH_C = (dpp_left N_L - dpp_right N_R) / T_E(0)                                      (1)
+
+linear in (dpp_left, dpp_right).  A straight window pins their ratio (the compass does not turn), a turn their
+scale.  Solved by iteratively reweighted least squares with Huber weights (a window inside a magnetic anomaly is an
+outlier of (1), not a turn); windows with a compass sample the model rejected or an odometer sample it found
+implausible are left out (a glitch is a leverage point no weight in dH_C can hold).  T_E(0) is eq. (14) at zero
+curvature: the effective track is the nominal's, so the distance per pulse found is the vehicle's only as far as
+its track is the nominal's (within ~10 %; the heading needs only their ratio dpp / T_E).
+
+This uses the whole drive (``odocompass estimate`` post-processes a log); it is not a filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+WINDOW_S = 10.0
+"""Window (s): short enough that the compass heading's change is within +-180 deg, long enough for whole pulses."""
+MIN_WINDOW_PULSES = 20.0
+"""A window with fewer counts of both wheels together is standing still: left out."""
+MIN_WINDOWS = 30
+"""Fewer usable windows than this (5 minutes at 10 s): no fit (the nominal vehicle stays)."""
+MIN_TURN_DEG = 360.0
+"""The windows must turn at least this much in all (sum of |dH_C|): a straight drive fixes the ratio, not the
+scale."""
+MAX_SCALE_SE = 0.05
+"""Relative standard error of the scale above which the fit is not used."""
+DPP_RANGE = (0.2, 5.0)
+"""The distance per pulse found must lie within these factors of the nominal's, else it is not used."""
+_HUBER_K = 2.0
+_IRLS_ITERATIONS = 20
+
+
+@dataclass(frozen=True)
+class WheelScales:
+    """Distance per pulse of each wheel (m), from ``n_windows`` windows; ``scale_se`` the relative standard error of
+    their mean, ``residual_deg`` the robust sigma of (1)'s residual."""
+
+    dpp_left: float
+    dpp_right: float
+    n_windows: int
+    scale_se: float
+    residual_deg: float
+
+
+def _counts(counter: np.ndarray, modulus: float) -> np.ndarray:
+    """Per-sample increments of a wrapping counter (the nearest within modulus/2; NaN where a count is missing)."""
+    d = np.diff(counter)
+    return np.concatenate([[0.0], d - modulus * np.round(d / modulus)])
+
+
+def _huber_fit(a: np.ndarray, y: np.ndarray):
+    """Huber IRLS of y ~ a @ x: (x, robust sigma of the residual, covariance of x)."""
+    w = np.ones_like(y)
+    for _ in range(_IRLS_ITERATIONS):
+        sw = np.sqrt(w)
+        x, *_ = np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)
+        r = y - a @ x
+        sigma = 1.4826 * np.median(np.abs(r)) + 1e-6
+        c = _HUBER_K * sigma
+        w = np.where(np.abs(r) <= c, 1.0, c / np.abs(r))
+    normal = (a * w[:, None]).T @ a
+    return x, sigma, sigma ** 2 * np.linalg.inv(normal)
+
+
+def fit(params, drive, compass_heading: np.ndarray, compass_ok: np.ndarray, odometer_ok: np.ndarray,
+        window_s: float = WINDOW_S) -> WheelScales | None:
+    """(1) fitted on one drive: ``compass_heading`` H_C (rad, (N,)), ``compass_ok`` / ``odometer_ok`` the model's
+    compass_valid / odometer_valid (N,).  None where the drive cannot tell (too short, too straight, no compass, a
+    fit too uncertain or outside DPP_RANGE)."""
+    from jaxmodel.track import effective_track
+
+    inputs = drive.inputs
+    t = np.asarray(inputs.time_s, np.float64)
+    if t.size < 3:
+        return None
+    modulus = float(params.counter_modulus)
+    n_left = _counts(np.asarray(inputs.left_pulses, np.float64), modulus)
+    n_right = _counts(np.asarray(inputs.right_pulses, np.float64), modulus)
+    bad = ~(np.isfinite(n_left) & np.isfinite(n_right)) | (np.asarray(odometer_ok) < 0.5)
+    n_left, n_right = np.where(bad, 0.0, n_left), np.where(bad, 0.0, n_right)
+    cum_left, cum_right, cum_bad = np.cumsum(n_left), np.cumsum(n_right), np.cumsum(bad)
+    edges = np.searchsorted(t, np.arange(t[0], t[-1], window_s))
+    start, end = edges[:-1], edges[1:]
+    heading = np.asarray(compass_heading, np.float64)
+    ok_c = (np.asarray(compass_ok) > 0.5) & np.isfinite(heading)
+    d_heading = np.angle(np.exp(1j * (heading[end] - heading[start])))
+    win_left, win_right = cum_left[end] - cum_left[start], cum_right[end] - cum_right[start]
+    use = (ok_c[start] & ok_c[end] & (cum_bad[end] == cum_bad[start])
+           & (win_left + win_right >= MIN_WINDOW_PULSES))
+    if use.sum() < MIN_WINDOWS or np.degrees(np.abs(d_heading[use]).sum()) < MIN_TURN_DEG:
+        return None
+    track = float(effective_track(0.0, params.P, params.B, params.T_F)) \
+        if float(params.sensor_axle) > 0.5 else float(params.T_R)
+    a = np.stack([win_left[use], -win_right[use]], axis=1) / track
+    (dpp_left, dpp_right), sigma, cov = _huber_fit(a, d_heading[use])
+    mean = 0.5 * (dpp_left + dpp_right)
+    nominal = 0.5 * (float(params.dpp_left) + float(params.dpp_right))
+    scale_se = 0.5 * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]) / mean if mean > 0 else np.inf
+    if not (DPP_RANGE[0] * nominal <= min(dpp_left, dpp_right) and max(dpp_left, dpp_right) <= DPP_RANGE[1] * nominal
+            and scale_se <= MAX_SCALE_SE):
+        return None
+    return WheelScales(float(dpp_left), float(dpp_right), int(use.sum()), float(scale_se), float(np.degrees(sigma)))
+
+
+def from_compass(params, drive) -> WheelScales | None:
+    """``fit`` on the drive, its compass heading and validity from the model itself (compass mode, ``params``)."""
+    import jaxmodel
+
+    from .estimate import run_padded
+
+    out = run_padded(params, drive, jaxmodel.Config(mode="compass"))
+    return fit(params, drive, np.asarray(out.compass_heading), np.asarray(out.compass_valid),
+               np.asarray(out.odometer_valid))
+
+
+def applied(params, scales: WheelScales | None):
+    """``params`` with the fitted distances per pulse (unchanged when ``scales`` is None)."""
+    if scales is None:
+        return params
+    return params._replace(dpp_left=np.float64(scales.dpp_left), dpp_right=np.float64(scales.dpp_right))
+
+
+def for_drive(params, nominal_vehicle: bool, drive, mode: str):
+    """(params, WheelScales or None): for a vehicle nobody gave (``nominal_vehicle``, diagnostics.estimation_params)
+    in a mode that reads the wheels, the distances per pulse found from the drive's own compass; else ``params``
+    unchanged.  The one place ``estimate`` and ``fleet evaluate`` decide it."""
+    if not nominal_vehicle or mode == "compass":
+        return params, None
+    scales = from_compass(params, drive)
+    return applied(params, scales), scales
+
+
+def describe(scales: WheelScales | None, params) -> str:
+    """One line for the user: what the wheels' distance per pulse is and where it came from."""
+    if scales is None:
+        return (f"the nominal distance per pulse ({float(params.dpp_left):g} m) kept: the drive's compass could not "
+                f"tell the wheels' (too short, too straight, no compass, or too disturbed)")
+    return (f"distance per pulse from the drive's own compass: left {scales.dpp_left:.6g} m, right "
+            f"{scales.dpp_right:.6g} m ({scales.n_windows} windows of {WINDOW_S:g} s, scale +-"
+            f"{100 * scales.scale_se:.1f} %)")
