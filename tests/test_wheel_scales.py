@@ -53,6 +53,10 @@ def test_equation_1_is_recovered_through_counter_wraps_and_disturbed_windows():
     assert scales.dpp_left == pytest.approx(0.041, rel=1e-3)
     assert scales.dpp_right / scales.dpp_left == pytest.approx(0.0414 / 0.041, abs=2e-4)
     assert scales.n_windows >= 55 and scales.scale_se < 0.01
+    # tyres 0.05 % apart are taken as equal (EQUAL_TYRES): their mean, the rest left to the online calibration
+    drive, params, heading = _synthetic_drive(0.03, 0.030015)
+    near = wheel_scales.fit(params, drive, heading, ok, ok)
+    assert near.dpp_left == near.dpp_right == pytest.approx(0.0300075, rel=1e-3)
 
 
 def test_no_fit_where_the_drive_cannot_tell():
