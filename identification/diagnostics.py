@@ -64,7 +64,8 @@ def checked_params(path, label: str = "--params"):
 
 def estimation_params(path, label: str = "--params"):
     """(Params, extra, nominal_vehicle): ``checked_params`` for running the estimator, with the turn-scale state of
-    a vehicle nobody gave switched on where the file sets no vehicle parameter (``jaxmodel.for_unidentified_vehicle``).
+    a vehicle nobody gave switched on where the file does not give the wheel turn's scale
+    (``jaxmodel.for_unidentified_vehicle``).
     The one place that decides it, for ``estimate`` and ``fleet evaluate`` alike."""
     import jaxmodel
 

@@ -116,9 +116,10 @@ def main(args) -> int:
     drive_path = Path(args.drive)
     _format_of(out_path)  # refuse an unknown output extension before the work
     check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
-    params, _extra, nominal_vehicle = estimation_params(args.params)
+    params, extra, nominal_vehicle = estimation_params(args.params)
     drive = read_drive(drive_path)
-    params, scales = wheel_scales.for_drive(params, nominal_vehicle, drive, args.mode)
+    fit_dpp = wheel_scales.dpp_unknown(extra["keys"])
+    params, scales = wheel_scales.for_drive(params, fit_dpp, drive, args.mode)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track, robust=getattr(args, "filter", "robust") == "robust",
                              hard_iron=getattr(args, "hard_iron", "off") == "on")
@@ -133,12 +134,11 @@ def main(args) -> int:
         write_drive(tmp, cols)
     if nominal_vehicle:
         sigma0 = jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]
-        console.info(f"no vehicle parameters ({', '.join(jaxmodel.VEHICLE_KEYS)}) in "
-                     f"{args.params or 'the built-in defaults'}: the nominal vehicle, with the wheel turn's scale "
-                     f"error learned online (filter_scale_sigma0 {sigma0:g}); "
-                     f"odocompass identify finds the vehicle's own")
-        if args.mode != "compass":
-            console.info(wheel_scales.describe(scales, params))
+        console.info(f"the wheel turn's scale is not given (a dpp_left or dpp_right and a T_F or T_R) in "
+                     f"{args.params or 'the built-in defaults'}: its error learned online (filter_scale_sigma0 "
+                     f"{sigma0:g}); odocompass identify finds the vehicle's own")
+    if fit_dpp and args.mode != "compass":
+        console.info(wheel_scales.describe(scales, params))
     for w in drive_warnings(drive, params, cols, mode=args.mode):
         console.warn(w)
     n_compass, n_odometer = skipped_counts(cols)

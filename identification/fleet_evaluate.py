@@ -103,7 +103,7 @@ def evaluate_task(payload: dict) -> list[dict]:
             if d.n_samples < 2:
                 raise ValueError(f"{item['path']}: only {d.n_samples} sample(s)")
             params, _scales = wheel_scales.for_drive(jaxmodel.make_params(item["params"]),
-                                                     item.get("nominal_vehicle", False), d, config.mode)
+                                                     item.get("fit_dpp", False), d, config.mode)
             ready.append((row, d, params))
         except Exception as exc:  # noqa: BLE001 - a missing, corrupt or bad log: this drive's error
             text = " ".join(str(exc).split()) or type(exc).__name__
@@ -136,17 +136,18 @@ def evaluate_task(payload: dict) -> list[dict]:
 
 
 def _vehicle_params(params_arg: Path, vehicle_ids) -> dict[str, tuple]:
-    """vehicle_id -> (params dict or None, file, error, nominal_vehicle) from one file or a folder of
-    <vehicle_id>.json; a file without the vehicle's parameters runs the nominal vehicle as ``estimate`` does (its turn
-    scale learned, its distances per pulse from each drive's compass: wheel_scales.for_drive)."""
+    """vehicle_id -> (params dict or None, file, error, fit_dpp) from one file or a folder of <vehicle_id>.json; a
+    file without the vehicle's parameters runs the nominal vehicle as ``estimate`` does (its turn scale learned), and
+    one without dpp_left, dpp_right has them found from each drive's compass (``fit_dpp``, wheel_scales.for_drive)."""
     import jaxmodel
 
+    from . import wheel_scales
     from .diagnostics import estimation_params
 
     if not params_arg.is_dir():
-        p, _, nominal = estimation_params(params_arg)
+        p, extra, _ = estimation_params(params_arg)
         d = jaxmodel.params_to_dict(p)
-        return {vid: (d, str(params_arg), None, nominal) for vid in vehicle_ids}
+        return {vid: (d, str(params_arg), None, wheel_scales.dpp_unknown(extra["keys"])) for vid in vehicle_ids}
     out = {}
     for vid in vehicle_ids:
         f = params_arg / f"{vid}.json"
@@ -154,8 +155,8 @@ def _vehicle_params(params_arg: Path, vehicle_ids) -> dict[str, tuple]:
             out[vid] = (None, str(f), f"{f}: no parameter file for vehicle {vid}", False)
             continue
         try:
-            p, _, nominal = estimation_params(f)
-            out[vid] = (jaxmodel.params_to_dict(p), str(f), None, nominal)
+            p, extra, _ = estimation_params(f)
+            out[vid] = (jaxmodel.params_to_dict(p), str(f), None, wheel_scales.dpp_unknown(extra["keys"]))
         except Exception as exc:  # noqa: BLE001 - a bad parameter file: that vehicle's drives are errors
             text = " ".join(str(exc).split())
             out[vid] = (None, str(f), text if str(f) in text else f"{f}: {text}", False)
@@ -196,10 +197,10 @@ def main(args) -> int:
     per_vehicle = _vehicle_params(params_arg, list(vehicles))
     items = []
     for vid, veh in vehicles.items():
-        params, pfile, err, nominal = per_vehicle[vid]
+        params, pfile, err, fit_dpp = per_vehicle[vid]
         for p, role in veh.drives:
             items.append({"vehicle_id": vid, "path": str(p), "role": role, "params": params, "params_file": pfile,
-                          "nominal_vehicle": nominal, "error": err, "size": veh.size_hint()})
+                          "fit_dpp": fit_dpp, "error": err, "size": veh.size_hint()})
     order = {(it["vehicle_id"], it["path"]): k for k, it in enumerate(items)}
     items_sorted = sorted(items, key=lambda it: _size(it["path"]))
     batch = max(1, int(args.batch))

@@ -354,21 +354,28 @@ nominal parameters on the matrix 20.2 -> 3.7 deg on the tuning seeds, 16.0 -> 2.
 seeds; off by default, since with the vehicle's own parameters it costs 5-11 %).  Its prior sigma 0.15, not 0.05
 (stop 80, nominal parameters, the matrix's 15 conditions with a compass: tuning seeds 101-103 1.886 -> 1.238 deg,
 58 -> 99 of 180 met; held-out 104-106 1.310 -> 1.293 deg; the independent simulator's diagnosis drives, whose dpp
-is up to 2.4x the nominal, 10.35 -> 7.39 deg): a vehicle nobody gave is not within a few per cent of the nominal.
+is up to 2.4x the nominal, 10.35 -> 7.39 deg): a vehicle nobody gave is not within a few per cent of the nominal.  Switched on wherever the file does not give the
+wheel turn's scale (``for_unidentified_vehicle``, stop 81); the dpp themselves are then found from the drive's compass
+where the file gives neither (identification/wheel_scales.py).
 With it on, the tilt state's sigma stays at 2 deg (stop 25, nominal parameters: tuning seeds 101-103 2.41 -> 2.25 deg, held-out
 104-106 1.79 -> 1.71 deg against the default 3 deg), as the scale state explains part of what the tilt did.
 The rejected compass is hardened against over 699 m as before stop 26, not the default 300 m (nominal parameters:
 101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with
 a clean compass for long, and the compass is then the one to keep."""
 _TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd")
+TURN_SCALE_GIVEN_BY = (("dpp_left", "dpp_right"), ("T_F", "T_R"))
+"""The wheel turn's scale is dpp / T_E (US 4,788,645 eq. (8)): a file gives it when it sets one key of each group."""
 
 
 def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
     """(params, True) with UNIDENTIFIED_VEHICLE switched on (except any key of it that ``given_keys`` set) when
-    ``given_keys`` (the keys a parameter file set) hold none of VEHICLE_KEYS nor the turn-scale keys
-    themselves; else (params, False)."""
+    ``given_keys`` (the keys a parameter file set) do not give the wheel turn's scale (a key of each group of
+    TURN_SCALE_GIVEN_BY) and set no turn-scale key themselves; else (params, False).  Since stop 81 a file with
+    the track but no dpp, or a dpp but no track, counts as not giving it (independent simulator, diagnosis drives:
+    no track 4.19 -> 1.50 deg with the state; no dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md)."""
     given = set(given_keys)
-    if given & (set(VEHICLE_KEYS) | set(_TURN_SCALE_KEYS)):
+    scale_given = all(given & set(group) for group in TURN_SCALE_GIVEN_BY)
+    if scale_given or given & set(_TURN_SCALE_KEYS):
         return params, False
     return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()
                               if k not in given}), True

@@ -41,8 +41,19 @@ def rear_params():
 @pytest.fixture
 def params_file(tmp_path):
     path = tmp_path / "params.json"
-    path.write_text(json.dumps({"sensor_axle": "rear", "T_R": 1.55, "a": 0.0}))
+    path.write_text(json.dumps({"sensor_axle": "rear", "T_R": 1.55, "a": 0.0, "dpp_left": 0.02, "dpp_right": 0.02}))
     return path
+
+
+def test_a_file_without_the_pulse_scale_says_where_it_comes_from(tmp_path, capsys):
+    """A file with the vehicle's geometry but neither dpp: the scale is looked for in the drive's compass
+    (wheel_scales); this 16-s drive cannot tell it, and the line says the nominal is kept."""
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"sensor_axle": "rear", "T_R": 1.55, "a": 0.0}))
+    drive_path = write_drive(tmp_path / "drive.csv", drive_columns())
+    rc, err = run_cli(["estimate", str(drive_path), "--params", str(params), "--out", str(tmp_path / "e.csv")], capsys)
+    assert rc == 0, err
+    assert "the nominal distance per pulse (0.02 m) kept" in err
 
 
 def test_estimate_pads_to_a_length_bucket_without_changing_the_drive(rear_params):
@@ -219,9 +230,10 @@ def test_filter_seed_is_the_seed_filter_and_robust_the_default(tmp_path, params_
 
 
 def test_without_vehicle_parameters_the_turn_scale_is_learned(tmp_path, params_file, capsys):
-    """No P, B, T_F, T_R, a or dpp given (no file, or a file without them): the nominal vehicle, and the
-    offset filter's turn-scale state on (jaxmodel.UNIDENTIFIED_VEHICLE), said on stderr; a file that
-    gives the vehicle (or the turn-scale keys themselves) runs the parameters as they are."""
+    """The wheel turn's scale not given (no file, or a file without a dpp and a track): the offset filter's
+    turn-scale state on (jaxmodel.UNIDENTIFIED_VEHICLE), said on stderr; a file that gives a dpp and a track (or
+    the turn-scale keys themselves) runs the parameters as they are.  (This 16-s drive is too short for
+    wheel_scales to find the dpp from the compass: the nominal is kept.)"""
     cols = drive_columns()
     drive_path = write_drive(tmp_path / "drive.csv", cols)
     inputs = drive_from_columns(cols).inputs
@@ -238,14 +250,18 @@ def test_without_vehicle_parameters_the_turn_scale_is_learned(tmp_path, params_f
         rc, err = run_cli(["estimate", str(drive_path), "--out", str(out)] + (["--params", str(path)] if path else []),
                           capsys)
         assert rc == 0, err
-        assert ("scale error learned online" in err) == learned, (path, err)
+        assert ("error learned online (filter_scale_sigma0" in err) == learned, (path, err)
         expected = np.degrees(np.asarray(jaxmodel.run(params, inputs).heading))
         np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
 
 
 def test_for_unidentified_vehicle_leaves_given_parameters_alone():
     base = jaxmodel.make_params()
-    assert jaxmodel.for_unidentified_vehicle(base, ("T_F",)) == (base, False)
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left")) == (base, False)
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_R", "dpp_left", "dpp_right", "P")) == (base, False)
+    # the turn's scale is dpp / T_E: a file with only one of them does not give it (stop 81)
+    for half in (("T_F", "P", "B"), ("dpp_left", "dpp_right", "a")):
+        assert jaxmodel.for_unidentified_vehicle(base, half)[1]
     assert jaxmodel.for_unidentified_vehicle(base, ("filter_scale_psd",)) == (base, False)
     changed, nominal = jaxmodel.for_unidentified_vehicle(base, ("T_C", "D_N"))
     assert nominal and float(changed.filter_scale_sigma0) == jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]

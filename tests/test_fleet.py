@@ -271,16 +271,17 @@ def test_parquet_manifest_and_fingerprint(tmp_path):
 
 def test_fleet_evaluate_runs_a_vehicle_nobody_gave_as_estimate_does(tmp_path):
     """A parameter file without the vehicle (only the compass's calibration) switches on the turn-scale state of
-    ``jaxmodel.UNIDENTIFIED_VEHICLE`` in ``fleet evaluate`` as in ``estimate`` (one place decides:
-    diagnostics.estimation_params); a file with the vehicle keeps the defaults."""
+    ``jaxmodel.UNIDENTIFIED_VEHICLE`` and the dpp fit from the compass in ``fleet evaluate`` as in ``estimate`` (one
+    place decides each: diagnostics.estimation_params, wheel_scales.dpp_unknown); a file with a dpp and a track keeps
+    the defaults."""
     from identification.fleet_evaluate import _vehicle_params
 
     (tmp_path / "car-01.json").write_text(json.dumps({"variation_deg": 2.0}))
-    (tmp_path / "car-02.json").write_text(json.dumps({"P": 0.125, "variation_deg": 2.0}))
+    (tmp_path / "car-02.json").write_text(json.dumps({"T_F": 1.55, "dpp_left": 0.021, "dpp_right": 0.021}))
     per_vehicle = _vehicle_params(tmp_path, ["car-01", "car-02"])
-    nobody, _, err1, nominal1 = per_vehicle["car-01"]
-    given, _, err2, nominal2 = per_vehicle["car-02"]
-    assert err1 is None and err2 is None and nominal1 and not nominal2
+    nobody, _, err1, fit_dpp1 = per_vehicle["car-01"]
+    given, _, err2, fit_dpp2 = per_vehicle["car-02"]
+    assert err1 is None and err2 is None and fit_dpp1 and not fit_dpp2
     for key, value in jm.UNIDENTIFIED_VEHICLE.items():
         assert nobody[key] == pytest.approx(value)
     default = jm.params_to_dict(jm.make_params())

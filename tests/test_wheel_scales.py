@@ -68,6 +68,9 @@ def test_no_fit_where_the_drive_cannot_tell():
     short, short_params, short_heading = _synthetic_drive(0.03, 0.03, n=1200)
     assert wheel_scales.fit(short_params, short, short_heading, np.ones(1200), np.ones(1200)) is None
     assert wheel_scales.applied(params, None) is params
+    assert wheel_scales.dpp_unknown(("P", "B", "T_F")) and wheel_scales.dpp_unknown(())
+    assert not wheel_scales.dpp_unknown(("dpp_right",))
+    assert wheel_scales.for_drive(params, False, drive, "complementary") == (params, None)
     assert "nominal distance per pulse" in wheel_scales.describe(None, params)
     # the wheels' odometer samples the model found implausible are left out of the windows
     garbled = np.ones(heading.size)
