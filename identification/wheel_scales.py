@@ -20,7 +20,8 @@ its track is the nominal's (within ~10 %; the heading needs only their ratio dpp
 
 This uses the whole drive (``odocompass estimate`` post-processes a log); it is not a filter.  It runs wherever the
 file gives neither dpp (``dpp_unknown``): also a file with the vehicle's geometry from its data sheet but no measured
-pulse scale (independent simulator, diagnosis drives: 14.6 deg with the nominal 0.02 m, 2.6 with the fit).
+pulse scale (independent simulator, diagnosis drives: 14.6 deg with the nominal 0.02 m, 2.6 with the fit, 1.8 with
+the turn-scale state too).
 """
 
 from __future__ import annotations
