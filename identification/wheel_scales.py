@@ -13,10 +13,12 @@ compass mode) is the wheels' turn, US 4,788,645 eq. (8), with the counts N_L, N_
 
 linear in (dpp_left, dpp_right).  A straight window pins their ratio (the compass does not turn), a turn their
 scale.  Solved by iteratively reweighted least squares with Huber weights (a window inside a magnetic anomaly is an
-outlier of (1), not a turn); windows with a compass sample the model rejected or an odometer sample it found
-implausible are left out (a glitch is a leverage point no weight in dH_C can hold).  T_E(0) is eq. (14) at zero
-curvature: the effective track is the nominal's, so the distance per pulse found is the vehicle's only as far as
-its track is the nominal's (within ~10 %; the heading needs only their ratio dpp / T_E).
+outlier of (1), not a turn); windows whose ends have a compass sample the model rejected, or that hold an
+odometer sample it found implausible, a burst, or a gap in time, are left out (a glitch is a leverage point no
+weight in dH_C can hold).  The counts are divided by eq. (8)'s 1 + a V^2.  T_E(0) is eq. (14) at zero curvature
+with the file's track (the nominal's where it gives none), so the distance per pulse found is the vehicle's only as
+far as its track is that one (the nominal's within ~10 % on another simulator's vehicles; the heading needs only
+the ratio dpp / T_E).
 
 This uses the whole drive (``odocompass estimate`` post-processes a log); it is not a filter.  It runs wherever the
 file gives neither dpp (``dpp_unknown``): also a file with the vehicle's geometry from its data sheet but no measured
@@ -41,6 +43,8 @@ MIN_TURN_DEG = 360.0
 scale."""
 MAX_SCALE_SE = 0.05
 """Relative standard error of the scale above which the fit is not used."""
+MAX_RATIO = 0.1
+"""Tyres fitted more than this apart (|dpp_right / dpp_left - 1|) are no tyres: no fit."""
 DPP_RANGE = (0.2, 5.0)
 """The distance per pulse found must lie within these factors of the nominal's, else it is not used."""
 EQUAL_TYRES = 1e-3
@@ -65,66 +69,93 @@ class WheelScales:
     residual_deg: float
 
 
-def _counts(counter: np.ndarray, modulus: float) -> np.ndarray:
-    """Per-sample increments of a wrapping counter (the nearest within modulus/2; NaN where a count is missing)."""
+def _counts(counter: np.ndarray, modulus: float, expected: np.ndarray) -> np.ndarray:
+    """Per-sample increments of a wrapping counter, each the one within modulus/2 of ``expected`` (pulses), as the
+    model decodes them (jaxmodel.odometer.decode_counter: an 8-bit counter at 1 Hz wraps more than half its modulus
+    between samples above ~2.5 m/s)."""
     d = np.diff(counter)
-    return np.concatenate([[0.0], d - modulus * np.round(d / modulus)])
+    d = np.where(d == 0.0, 0.0, d - modulus * np.round((d - expected[1:]) / modulus))
+    return np.concatenate([[0.0], d])
 
 
 def _huber_fit(a: np.ndarray, y: np.ndarray):
-    """Huber IRLS of y ~ a @ x: (x, robust sigma of the residual, covariance of x)."""
+    """Huber IRLS of y ~ a @ x: (x, robust sigma of the residual, covariance of x), or None where ``a`` cannot
+    tell its two unknowns apart (a wheel that never counts, one counter copied into the other)."""
+    if np.linalg.matrix_rank(a) < a.shape[1]:
+        return None
     w = np.ones_like(y)
     for _ in range(_IRLS_ITERATIONS):
         sw = np.sqrt(w)
         x, *_ = np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)
-        r = y - a @ x
-        sigma = 1.4826 * np.median(np.abs(r)) + 1e-6
+        r = np.abs(y - a @ x)
+        sigma = 1.4826 * np.median(r) + 1e-6
         c = _HUBER_K * sigma
-        w = np.where(np.abs(r) <= c, 1.0, c / np.abs(r))
-    normal = (a * w[:, None]).T @ a
-    return x, sigma, sigma ** 2 * np.linalg.inv(normal)
+        w = c / np.maximum(r, c)
+    try:
+        cov = sigma ** 2 * np.linalg.inv((a * w[:, None]).T @ a)
+    except np.linalg.LinAlgError:
+        return None
+    return x, sigma, cov
 
 
 def fit(params, drive, compass_heading: np.ndarray, compass_ok: np.ndarray, odometer_ok: np.ndarray,
-        window_s: float = WINDOW_S) -> WheelScales | None:
+        speed: np.ndarray | None = None, window_s: float = WINDOW_S) -> WheelScales | None:
     """(1) fitted on one drive: ``compass_heading`` H_C (rad, (N,)), ``compass_ok`` / ``odometer_ok`` the model's
-    compass_valid / odometer_valid (N,).  None where the drive cannot tell (too short, too straight, no compass, a
-    fit too uncertain or outside DPP_RANGE)."""
+    compass_valid / odometer_valid (N,), ``speed`` its speed with ``params``' dpp (m/s, (N,); None: standing
+    still), which decodes the counters' wraps and gives eq. (8)'s velocity term 1 + a V^2 (the counts of each sample
+    divided by it, V rescaled by the fitted dpp, twice).  None where the drive cannot tell (too short, too straight,
+    no compass, a dead wheel, a fit too uncertain, tyres more than MAX_RATIO apart or outside DPP_RANGE)."""
     from jaxmodel.track import effective_track
 
     inputs = drive.inputs
     t = np.asarray(inputs.time_s, np.float64)
     if t.size < 3:
         return None
+    nominal = 0.5 * (float(params.dpp_left) + float(params.dpp_right))
+    speed = np.zeros_like(t) if speed is None else np.nan_to_num(np.asarray(speed, np.float64))
+    expected = speed * np.concatenate([[0.0], np.diff(t)]) / nominal
     modulus = float(params.counter_modulus)
-    n_left = _counts(np.asarray(inputs.left_pulses, np.float64), modulus)
-    n_right = _counts(np.asarray(inputs.right_pulses, np.float64), modulus)
-    bad = ~(np.isfinite(n_left) & np.isfinite(n_right)) | (np.asarray(odometer_ok) < 0.5)
+    n_left = _counts(np.asarray(inputs.left_pulses, np.float64), modulus, expected)
+    n_right = _counts(np.asarray(inputs.right_pulses, np.float64), modulus, expected)
+    # A sample no car can drive (one wheel 1.5x the other and more than quantization: a burst) or a missing count
+    # leaves its window out, as does one the model found implausible: a glitch is a leverage point of (1).
+    impossible = np.abs(n_left - n_right) > 0.5 * np.abs(n_left + n_right) + 2.0
+    bad = ~(np.isfinite(n_left) & np.isfinite(n_right)) | (np.asarray(odometer_ok) < 0.5) | impossible
     n_left, n_right = np.where(bad, 0.0, n_left), np.where(bad, 0.0, n_right)
-    cum_left, cum_right, cum_bad = np.cumsum(n_left), np.cumsum(n_right), np.cumsum(bad)
-    edges = np.searchsorted(t, np.arange(t[0], t[-1], window_s))
+    # A step in time_s longer than two windows' share (a logger gap) ends the windows around it.
+    gap = np.concatenate([[False], np.diff(t) > 0.5 * window_s])
+    cum_bad = np.cumsum(bad | gap)
+    edges = np.unique(np.searchsorted(t, t[0] + window_s * np.arange(int((t[-1] - t[0]) // window_s) + 1)))
     start, end = edges[:-1], edges[1:]
     heading = np.asarray(compass_heading, np.float64)
     ok_c = (np.asarray(compass_ok) > 0.5) & np.isfinite(heading)
     d_heading = np.angle(np.exp(1j * (heading[end] - heading[start])))
-    win_left, win_right = cum_left[end] - cum_left[start], cum_right[end] - cum_right[start]
-    use = (ok_c[start] & ok_c[end] & (cum_bad[end] == cum_bad[start])
-           & (win_left + win_right >= MIN_WINDOW_PULSES))
-    if use.sum() < MIN_WINDOWS or np.degrees(np.abs(d_heading[use]).sum()) < MIN_TURN_DEG:
-        return None
+    use = ok_c[start] & ok_c[end] & (cum_bad[end] == cum_bad[start]) & (t[end] - t[start] <= 1.5 * window_s)
     track = float(effective_track(0.0, params.P, params.B, params.T_F)) \
         if float(params.sensor_axle) > 0.5 else float(params.T_R)
-    a = np.stack([win_left[use], -win_right[use]], axis=1) / track
-    (dpp_left, dpp_right), sigma, cov = _huber_fit(a, d_heading[use])
+    scale = 1.0
+    for _ in range(2):
+        velocity = 1.0 / (1.0 + float(params.a) * (scale * speed) ** 2)
+        cum_left, cum_right = np.cumsum(n_left * velocity), np.cumsum(n_right * velocity)
+        win_left, win_right = cum_left[end] - cum_left[start], cum_right[end] - cum_right[start]
+        used = use & (win_left + win_right >= MIN_WINDOW_PULSES)
+        if used.sum() < MIN_WINDOWS or np.degrees(np.abs(d_heading[used]).sum()) < MIN_TURN_DEG:
+            return None
+        solved = _huber_fit(np.stack([win_left[used], -win_right[used]], axis=1) / track, d_heading[used])
+        if solved is None:
+            return None
+        (dpp_left, dpp_right), sigma, cov = solved
+        scale = 0.5 * (dpp_left + dpp_right) / nominal
     mean = 0.5 * (dpp_left + dpp_right)
-    nominal = 0.5 * (float(params.dpp_left) + float(params.dpp_right))
-    scale_se = 0.5 * np.sqrt(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1]) / mean if mean > 0 else np.inf
     if not (DPP_RANGE[0] * nominal <= min(dpp_left, dpp_right) and max(dpp_left, dpp_right) <= DPP_RANGE[1] * nominal
-            and scale_se <= MAX_SCALE_SE):
+            and abs(dpp_right / dpp_left - 1.0) <= MAX_RATIO):
+        return None
+    scale_se = 0.5 * np.sqrt(max(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1], 0.0)) / mean
+    if scale_se > MAX_SCALE_SE:
         return None
     if abs(dpp_right / dpp_left - 1.0) < EQUAL_TYRES:
         dpp_left = dpp_right = mean
-    return WheelScales(float(dpp_left), float(dpp_right), int(use.sum()), float(scale_se), float(np.degrees(sigma)))
+    return WheelScales(float(dpp_left), float(dpp_right), int(used.sum()), float(scale_se), float(np.degrees(sigma)))
 
 
 def from_compass(params, drive) -> WheelScales | None:
@@ -135,7 +166,7 @@ def from_compass(params, drive) -> WheelScales | None:
 
     out = run_padded(params, drive, jaxmodel.Config(mode="compass"))
     return fit(params, drive, np.asarray(out.compass_heading), np.asarray(out.compass_valid),
-               np.asarray(out.odometer_valid))
+               np.asarray(out.odometer_valid), np.asarray(out.speed))
 
 
 def applied(params, scales: WheelScales | None):

@@ -363,18 +363,19 @@ The rejected compass is hardened against over 699 m as before stop 26, not the d
 101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with
 a clean compass for long, and the compass is then the one to keep."""
 _TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd")
-TURN_SCALE_GIVEN_BY = (("dpp_left", "dpp_right"), ("T_F", "T_R"))
-"""The wheel turn's scale is dpp / T_E (US 4,788,645 eq. (8)): a file gives it when it sets one key of each group."""
+_DPP_KEYS = ("dpp_left", "dpp_right")
 
 
 def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
     """(params, True) with UNIDENTIFIED_VEHICLE switched on (except any key of it that ``given_keys`` set) when
-    ``given_keys`` (the keys a parameter file set) do not give the wheel turn's scale (a key of each group of
-    TURN_SCALE_GIVEN_BY) and set no turn-scale key themselves; else (params, False).  Since stop 81 a file with
-    the track but no dpp, or a dpp but no track, counts as not giving it (independent simulator, diagnosis drives:
-    no track 4.19 -> 1.50 deg with the state; no dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md)."""
+    ``given_keys`` (the keys a parameter file set) do not give the wheel turn's scale (a dpp and the sensor axle's
+    track: T_F front, T_R rear; the turn's scale is dpp / T_E, US 4,788,645 eq. (8)) and set no turn-scale key
+    themselves; else (params, False).  Since stop 81 a file with the track but no dpp, or a dpp but no track,
+    counts as not giving it (independent simulator, diagnosis drives: no track 4.19 -> 1.50 deg with the state; no
+    dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md)."""
     given = set(given_keys)
-    scale_given = all(given & set(group) for group in TURN_SCALE_GIVEN_BY)
+    track = "T_F" if float(params.sensor_axle) > 0.5 else "T_R"  # the track of the axle that carries the sensors
+    scale_given = bool(given & set(_DPP_KEYS)) and track in given
     if scale_given or given & set(_TURN_SCALE_KEYS):
         return params, False
     return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()

@@ -258,7 +258,11 @@ def test_without_vehicle_parameters_the_turn_scale_is_learned(tmp_path, params_f
 def test_for_unidentified_vehicle_leaves_given_parameters_alone():
     base = jaxmodel.make_params()
     assert jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left")) == (base, False)
-    assert jaxmodel.for_unidentified_vehicle(base, ("T_R", "dpp_left", "dpp_right", "P")) == (base, False)
+    rear = jaxmodel.make_params(sensor_axle="rear")
+    assert jaxmodel.for_unidentified_vehicle(rear, ("T_R", "dpp_left", "dpp_right", "P")) == (rear, False)
+    # the track of the other axle does not give the sensors' turn scale
+    assert jaxmodel.for_unidentified_vehicle(rear, ("T_F", "dpp_left"))[1]
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_R", "dpp_left"))[1]
     # the turn's scale is dpp / T_E: a file with only one of them does not give it (stop 81)
     for half in (("T_F", "P", "B"), ("dpp_left", "dpp_right", "a")):
         assert jaxmodel.for_unidentified_vehicle(base, half)[1]

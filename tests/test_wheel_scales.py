@@ -78,6 +78,28 @@ def test_no_fit_where_the_drive_cannot_tell():
     assert wheel_scales.fit(params, drive, heading, ok, garbled) is None
 
 
+def test_a_dead_wheel_a_gap_and_a_burst_give_no_wrong_fit():
+    """A right counter that never counts (or copies the left one): no fit, no LinAlgError.  A 60-s gap in time_s
+    and a 25-pulse burst on one wheel: the windows across them are left out and the fit is eq. (1)'s."""
+    drive, params, heading = _synthetic_drive(0.041, 0.0414)
+    ok = np.ones(heading.size)
+    inputs = drive.inputs
+    for right in (np.zeros_like(inputs.right_pulses), inputs.left_pulses):
+        dead = SimpleNamespace(inputs=SimpleNamespace(time_s=inputs.time_s, left_pulses=inputs.left_pulses,
+                                                      right_pulses=right))
+        assert wheel_scales.fit(params, dead, heading, ok, ok) is None
+    gap_time = np.where(inputs.time_s > 300.0, inputs.time_s + 60.0, inputs.time_s)
+    left = inputs.left_pulses.copy()
+    left[2000:] = np.mod(left[2000:] + 25.0, 4096)  # a burst of 25 pulses at sample 2000, kept by the counter
+    odd = SimpleNamespace(inputs=SimpleNamespace(time_s=gap_time, left_pulses=left, right_pulses=inputs.right_pulses))
+    heading = heading.copy()
+    heading[inputs.time_s > 300.0] += 1.0  # the heading moved during the gap: the window across it would say 57 deg
+    scales = wheel_scales.fit(params, odd, heading, ok, ok)
+    assert scales is not None
+    assert scales.dpp_left == pytest.approx(0.041, rel=1e-3)
+    assert scales.dpp_right / scales.dpp_left == pytest.approx(0.0414 / 0.041, abs=2e-4)
+
+
 @pytest.mark.slow
 def test_another_simulators_vehicle_is_found_and_estimate_uses_it(tmp_path, capsys):
     """Independent simulator, urban seed 1 (dpp 0.041 / 0.0414 m, twice the nominal; tyres 0.9 % apart; track
