@@ -118,11 +118,11 @@ def main(args) -> int:
     check_output_file(out_path, inputs=(("the drive log", drive_path), ("the parameter file", args.params)))
     params, extra, nominal_vehicle = estimation_params(args.params)
     drive = read_drive(drive_path)
-    fit_dpp = wheel_scales.dpp_unknown(extra["keys"])
-    params, scales = wheel_scales.for_drive(params, fit_dpp, drive, args.mode)
     config = jaxmodel.Config(mode=args.mode, refine_a=args.refine_a == "on", calibration=args.calibration == "on",
                              track=args.track, robust=getattr(args, "filter", "robust") == "robust",
                              hard_iron=getattr(args, "hard_iron", "off") == "on")
+    fit_dpp = wheel_scales.dpp_unknown(extra["keys"])
+    params, scales = wheel_scales.for_drive(params, fit_dpp, drive, config)
     console.status(f"estimating {drive.n_samples} samples ({drive.metadata.get('duration_s', 0.0):.0f} s) "
                  f"of {drive_path} in mode {args.mode}")
     try:

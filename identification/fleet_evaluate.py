@@ -9,7 +9,9 @@ the Inputs).  ``DIR/metrics.parquet`` gets one row per manifest row:
 vehicle_id, path, role, status (ok/error), error, n_samples, duration_s, distance_m (odometer),
 rmse_deg (the chosen mode's heading against ref_heading_deg, NaN without a reference),
 wheel_rmse_deg (odometer heading), compass_rmse_deg, ref_samples, skipped_compass_samples,
-skipped_odometer_samples, final_x_m, final_y_m, params (the parameter file used).
+skipped_odometer_samples, final_x_m, final_y_m, params (the parameter file used), dpp_left_m, dpp_right_m and
+dpp_source (the distances per pulse run: ``file``, ``compass`` where the file gave none and the drive's compass
+found them, ``nominal`` where it could not; identification/wheel_scales.py).
 
 Exit 0 when every drive was estimated, 3 when some ended ``error``.
 """
@@ -29,7 +31,8 @@ from .fleet_manifest import read_manifest
 EXIT_SOME_FAILED = 3
 COLUMNS = ("vehicle_id", "path", "role", "status", "error", "n_samples", "duration_s", "distance_m", "rmse_deg",
            "wheel_rmse_deg", "compass_rmse_deg", "ref_samples", "skipped_compass_samples",
-           "skipped_odometer_samples", "final_x_m", "final_y_m", "params")
+           "skipped_odometer_samples", "final_x_m", "final_y_m", "params", "dpp_left_m", "dpp_right_m", "dpp_source")
+_TEXT_COLUMNS = ("error", "params", "dpp_source")
 
 _CACHE: dict = {}
 
@@ -102,8 +105,10 @@ def evaluate_task(payload: dict) -> list[dict]:
             d = read_drive(item["path"])
             if d.n_samples < 2:
                 raise ValueError(f"{item['path']}: only {d.n_samples} sample(s)")
-            params, _scales = wheel_scales.for_drive(jaxmodel.make_params(item["params"]),
-                                                     item.get("fit_dpp", False), d, config.mode)
+            fit_dpp = item.get("fit_dpp", False)
+            params, scales = wheel_scales.for_drive(jaxmodel.make_params(item["params"]), fit_dpp, d, config)
+            row.update(dpp_left_m=float(params.dpp_left), dpp_right_m=float(params.dpp_right),
+                       dpp_source="compass" if scales else ("nominal" if fit_dpp else "file"))
             ready.append((row, d, params))
         except Exception as exc:  # noqa: BLE001 - a missing, corrupt or bad log: this drive's error
             text = " ".join(str(exc).split()) or type(exc).__name__
@@ -169,7 +174,7 @@ def write_metrics(path: Path, rows: list[dict]) -> Path:
 
     from .outputs import atomic
 
-    table = pa.table({c: [r.get(c, float("nan") if c not in ("error", "params") else "") for r in rows]
+    table = pa.table({c: [r.get(c, float("nan") if c not in _TEXT_COLUMNS else "") for r in rows]
                       for c in COLUMNS})
     with atomic(path) as tmp:
         pq.write_table(table, tmp)

@@ -158,13 +158,14 @@ def fit(params, drive, compass_heading: np.ndarray, compass_ok: np.ndarray, odom
     return WheelScales(float(dpp_left), float(dpp_right), int(used.sum()), float(scale_se), float(np.degrees(sigma)))
 
 
-def from_compass(params, drive) -> WheelScales | None:
-    """``fit`` on the drive, its compass heading and validity from the model itself (compass mode, ``params``)."""
+def from_compass(params, drive, config=None) -> WheelScales | None:
+    """``fit`` on the drive, its compass heading and validity from the model itself: ``config`` (a jaxmodel.Config,
+    the default one when None: its hard-iron learning, filter, ...) in compass mode, ``params``."""
     import jaxmodel
 
     from .estimate import run_padded
 
-    out = run_padded(params, drive, jaxmodel.Config(mode="compass"))
+    out = run_padded(params, drive, (config or jaxmodel.Config())._replace(mode="compass"))
     return fit(params, drive, np.asarray(out.compass_heading), np.asarray(out.compass_valid),
                np.asarray(out.odometer_valid), np.asarray(out.speed))
 
@@ -182,13 +183,14 @@ def dpp_unknown(given_keys) -> bool:
     return not ({"dpp_left", "dpp_right"} & set(given_keys))
 
 
-def for_drive(params, fit_dpp: bool, drive, mode: str):
-    """(params, WheelScales or None): where the distance per pulse is unknown (``fit_dpp``, ``dpp_unknown``) in a
-    mode that reads the wheels, the distances per pulse found from the drive's own compass; else ``params``
-    unchanged.  The one place ``estimate`` and ``fleet evaluate`` decide it."""
-    if not fit_dpp or mode == "compass":
+def for_drive(params, fit_dpp: bool, drive, config):
+    """(params, WheelScales or None): where the distance per pulse is unknown (``fit_dpp``, ``dpp_unknown``) and
+    ``config`` (a jaxmodel.Config) reads the wheels, the distances per pulse found from the drive's own compass (in
+    ``config``'s compass mode); else ``params`` unchanged.  The one place ``estimate`` and ``fleet evaluate`` decide
+    it."""
+    if not fit_dpp or config.mode == "compass":
         return params, None
-    scales = from_compass(params, drive)
+    scales = from_compass(params, drive, config)
     return applied(params, scales), scales
 
 

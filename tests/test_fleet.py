@@ -148,6 +148,7 @@ def test_fleet_evaluate_with_each_vehicles_parameters(fleet):
     for r in ok:
         assert r["distance_m"] > 100 and r["n_samples"] > 1000 and r["ref_samples"] > 0
         assert 0 < r["rmse_deg"] < 10 and r["params"].endswith(f"{r['vehicle_id']}.json")
+        assert r["dpp_source"] == "file" and r["dpp_left_m"] > 0  # identified files give the dpp
     (bad,) = [r for r in rows if r["status"] == "error"]
     assert bad["vehicle_id"] == "broken" and "broken.json" in bad["error"]
 
@@ -289,3 +290,28 @@ def test_fleet_evaluate_runs_a_vehicle_nobody_gave_as_estimate_does(tmp_path):
     assert default["filter_scale_sigma0"] != pytest.approx(jm.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"])
     single = _vehicle_params(tmp_path / "car-01.json", ["car-07"])["car-07"][0]
     assert single["filter_scale_sigma0"] == pytest.approx(jm.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"])
+
+
+@pytest.mark.slow
+def test_fleet_evaluate_task_finds_the_dpp_a_file_does_not_give(tmp_path):
+    """``fleet evaluate``'s task on an independent-simulator drive (dpp 0.041 m, twice the nominal) with a file that
+    has only the compass's calibration: the dpp found from the drive's compass, as ``estimate`` finds them, and said
+    in the metrics (dpp_source)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from independent_drives import independent_sim
+
+    from identification.fleet_evaluate import _vehicle_params, evaluate_task
+
+    csv_path, params_path = independent_sim.make_drive("urban", 1, str(tmp_path))
+    truth = json.loads(Path(params_path).read_text())
+    bare = Path(independent_sim.write_no_vehicle_params(params_path))
+    params, pfile, err, fit_dpp = _vehicle_params(bare, ["car"])["car"]
+    item = {"vehicle_id": "car", "path": csv_path, "role": "validate", "params": params, "params_file": pfile,
+            "fit_dpp": fit_dpp, "error": err}
+    (row,) = evaluate_task({"drives": [item], "config": {}})
+    assert row["status"] == "ok", row["error"]
+    assert row["dpp_source"] == "compass"
+    assert row["dpp_left_m"] == pytest.approx(truth["dpp_left"], rel=0.05)
+    assert row["rmse_deg"] < 2.0

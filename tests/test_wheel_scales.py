@@ -70,7 +70,8 @@ def test_no_fit_where_the_drive_cannot_tell():
     assert wheel_scales.applied(params, None) is params
     assert wheel_scales.dpp_unknown(("P", "B", "T_F")) and wheel_scales.dpp_unknown(())
     assert not wheel_scales.dpp_unknown(("dpp_right",))
-    assert wheel_scales.for_drive(params, False, drive, "complementary") == (params, None)
+    assert wheel_scales.for_drive(params, False, drive, jm.Config()) == (params, None)
+    assert wheel_scales.for_drive(params, True, drive, jm.Config(mode="compass")) == (params, None)
     assert "nominal distance per pulse" in wheel_scales.describe(None, params)
     # the wheels' odometer samples the model found implausible are left out of the windows
     garbled = np.ones(heading.size)
