@@ -134,8 +134,8 @@ def main(args) -> int:
         write_drive(tmp, cols)
     if nominal_vehicle:
         sigma0 = jaxmodel.UNIDENTIFIED_VEHICLE["filter_scale_sigma0"]
-        console.info(f"the wheel turn's scale is not given (a dpp_left or dpp_right and a T_F or T_R) in "
-                     f"{args.params or 'the built-in defaults'}: its error learned online (filter_scale_sigma0 "
+        console.info(f"the wheel turn's scale is not given (a dpp_left or dpp_right and the sensor axle's T_F or "
+                     f"T_R) in {args.params or 'the built-in defaults'}: its error learned online (filter_scale_sigma0 "
                      f"{sigma0:g}); odocompass identify finds the vehicle's own")
     if fit_dpp and args.mode != "compass":
         console.info(wheel_scales.describe(scales, params))

@@ -15,8 +15,8 @@ linear in (dpp_left, dpp_right).  A straight window pins their ratio (the compas
 scale.  Solved by iteratively reweighted least squares with Huber weights (a window inside a magnetic anomaly is an
 outlier of (1), not a turn); windows whose ends have a compass sample the model rejected, or that hold an
 odometer sample it found implausible, a burst, or a gap in time, are left out (a glitch is a leverage point no
-weight in dH_C can hold).  The counts are divided by eq. (8)'s 1 + a V^2.  T_E(0) is eq. (14) at zero curvature
-with the file's track (the nominal's where it gives none), so the distance per pulse found is the vehicle's only as
+weight in dH_C can hold).  The counts are divided by eq. (8)'s 1 + a V^2.  T_E(0) is eq. (14) at zero curvature,
+T_F (T_R for sensors on the rear axle), the file's track (the nominal's where it gives none), so the distance per pulse found is the vehicle's only as
 far as its track is that one (the nominal's within ~10 % on another simulator's vehicles; the heading needs only
 the ratio dpp / T_E).
 
@@ -70,12 +70,12 @@ class WheelScales:
 
 
 def _counts(counter: np.ndarray, modulus: float, expected: np.ndarray) -> np.ndarray:
-    """Per-sample increments of a wrapping counter, each the one within modulus/2 of ``expected`` (pulses), as the
-    model decodes them (jaxmodel.odometer.decode_counter: an 8-bit counter at 1 Hz wraps more than half its modulus
+    """Per-sample increments of a wrapping counter, each the one within modulus/2 of ``expected`` (pulses), decoded
+    by the model's own jaxmodel.odometer.decode_counter (an 8-bit counter at 1 Hz wraps more than half its modulus
     between samples above ~2.5 m/s)."""
-    d = np.diff(counter)
-    d = np.where(d == 0.0, 0.0, d - modulus * np.round((d - expected[1:]) / modulus))
-    return np.concatenate([[0.0], d])
+    from jaxmodel.odometer import decode_counter
+
+    return np.concatenate([[0.0], np.asarray(decode_counter(counter[1:], counter[:-1], modulus, expected[1:]))])
 
 
 def _huber_fit(a: np.ndarray, y: np.ndarray):
@@ -105,8 +105,6 @@ def fit(params, drive, compass_heading: np.ndarray, compass_ok: np.ndarray, odom
     still), which decodes the counters' wraps and gives eq. (8)'s velocity term 1 + a V^2 (the counts of each sample
     divided by it, V rescaled by the fitted dpp, twice).  None where the drive cannot tell (too short, too straight,
     no compass, a dead wheel, a fit too uncertain, tyres more than MAX_RATIO apart or outside DPP_RANGE)."""
-    from jaxmodel.track import effective_track
-
     inputs = drive.inputs
     t = np.asarray(inputs.time_s, np.float64)
     if t.size < 3:
@@ -131,8 +129,7 @@ def fit(params, drive, compass_heading: np.ndarray, compass_ok: np.ndarray, odom
     ok_c = (np.asarray(compass_ok) > 0.5) & np.isfinite(heading)
     d_heading = np.angle(np.exp(1j * (heading[end] - heading[start])))
     use = ok_c[start] & ok_c[end] & (cum_bad[end] == cum_bad[start]) & (t[end] - t[start] <= 1.5 * window_s)
-    track = float(effective_track(0.0, params.P, params.B, params.T_F)) \
-        if float(params.sensor_axle) > 0.5 else float(params.T_R)
+    track = float(params.T_F if float(params.sensor_axle) > 0.5 else params.T_R)  # T_E(0) = T_F by eq. (14)
     scale = 1.0
     for _ in range(2):
         velocity = 1.0 / (1.0 + float(params.a) * (scale * speed) ** 2)
@@ -180,7 +177,9 @@ def applied(params, scales: WheelScales | None):
 def dpp_unknown(given_keys) -> bool:
     """True when a parameter file set neither ``dpp_left`` nor ``dpp_right`` (its ``extra["keys"]``): the wheels'
     scale is then found from the compass, whatever else of the vehicle the file gives."""
-    return not ({"dpp_left", "dpp_right"} & set(given_keys))
+    from jaxmodel import DPP_KEYS
+
+    return not (set(DPP_KEYS) & set(given_keys))
 
 
 def for_drive(params, fit_dpp: bool, drive, config):

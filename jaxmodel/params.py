@@ -363,7 +363,8 @@ The rejected compass is hardened against over 699 m as before stop 26, not the d
 101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with
 a clean compass for long, and the compass is then the one to keep."""
 _TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd")
-_DPP_KEYS = ("dpp_left", "dpp_right")
+DPP_KEYS = ("dpp_left", "dpp_right")
+"""The wheels' distance per pulse: with the sensor axle's track they give the wheel turn's scale."""
 
 
 def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
@@ -375,7 +376,7 @@ def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
     dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md)."""
     given = set(given_keys)
     track = "T_F" if float(params.sensor_axle) > 0.5 else "T_R"  # the track of the axle that carries the sensors
-    scale_given = bool(given & set(_DPP_KEYS)) and track in given
+    scale_given = bool(given & set(DPP_KEYS)) and track in given
     if scale_given or given & set(_TURN_SCALE_KEYS):
         return params, False
     return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()
