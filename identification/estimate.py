@@ -137,6 +137,10 @@ def main(args) -> int:
         console.info(f"the wheel turn's scale is not given (a dpp_left or dpp_right and the sensor axle's T_F or "
                      f"T_R) in {args.params or 'the built-in defaults'}: its error learned online (filter_scale_sigma0 "
                      f"{sigma0:g}); odocompass identify finds the vehicle's own")
+    elif float(params.filter_scale_speed_ref) > 0.0 and "filter_scale_speed_ref" not in extra["keys"]:
+        console.info(f"the velocity coefficient a of eq. (8) is not given in {args.params}: the wheel turn's error "
+                     f"at speed learned online (filter_scale_speed_ref {float(params.filter_scale_speed_ref):g} m/s); "
+                     f"odocompass identify finds the vehicle's own")
     if fit_dpp and args.mode != "compass":
         console.info(wheel_scales.describe(scales, params))
     for w in drive_warnings(drive, params, cols, mode=args.mode):

@@ -80,7 +80,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     young = _offset.young(params, distance_filtered)
     calibrated = _cal.corrected(params, state.calibration)
     offset = _offset.predict(_follow.calibrated_rate_params(params, calibrated), state.offset, odo["AD"], d_t, alpha,
-                             odo["turn_sigma"])
+                             odo["turn_sigma"], odo["speed"])
     predicted_delta = offset.delta
     sigma = jnp.where(map_used, deg(params.kf_map_sigma_deg), _noise.compass_sigma(params, e_c, odo["turn_rate"]))
     drifting = _rate.drifting(params, offset)
@@ -101,7 +101,7 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
     offset = _offset.OffsetState(jnp.where(computed_once(initializing), _offset.start(params).vector, offset.vector))
     offset = _offset.count_since_large_drift(params, offset, state.offset, d_t)
     steady_params = _offset.steady_params(params)
-    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"])
+    steady = _offset.predict(steady_params, state.steady, odo["AD"], d_t, alpha, odo["turn_sigma"], odo["speed"])
     # The steady filter is not hardened against a compass that disagrees because it lags the wheels' drift.
     lagging = drifting | _rate.steady_lags(params, offset, state.steady)
     steady, steady_weight, steady_lost_restart = _offset.update(steady_params, steady, delta, sigma, d_t, 1.0,

@@ -44,6 +44,8 @@ jumps through its rate state (nominal parameters on the tuning drives: 20 deg RM
 k, prior sigma ``filter_scale_sigma0`` 0.05; 0.15 for a vehicle nobody gave since stop 80, ``UNIDENTIFIED_VEHICLE``;
 docs/tuning.md).  Off by default (sigma0 0): with
 exact parameters it costs 5-11 %, and one tuning-side 2.5 % mismatch drive went 1 -> 9.7 deg.
+With ``filter_scale_speed_ref`` V_ref > 0, k is the turn's error at V_ref and enters as k alpha (V / V_ref)^2: the
+error of eq. (8)'s 1 + a V^2 with a wrong a (``UNKNOWN_VELOCITY_COEFFICIENT``, a vehicle given but for its a).
 
 Two filters, one heading.  The rate that makes this filter follow a tyre mismatch before the
 calibration has caught it is, on a drive without one, noise learned from a compass whose errors
@@ -248,9 +250,10 @@ def restarted_like(params, fs, other):
     return OffsetState.pack(_restarted(params, o.delta, o.level, o.wander, fs.fields().since_drift))
 
 
-def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
+def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0, speed=0.0):
     """Propagate over one sample: AD (signed, m), |AD| (m) and the wheel turn alpha (rad); ``turn_sigma`` (rad) the
-    uncertainty of a turn the odometer guard substituted for a wheel that stopped counting (added to the offset's).
+    uncertainty of a turn the odometer guard substituted for a wheel that stopped counting (added to the offset's);
+    ``speed`` V (m/s), read only where filter_scale_speed_ref > 0 (the scale state's regressor alpha (V / V_ref)^2).
 
     x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0],
     [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]] and r like g (``roll_variance``), over ROLL_M where B_E is given.  The
@@ -260,6 +263,9 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     """
     f = fs.fields()
     a = ad_signed
+    ref = params.filter_scale_speed_ref
+    # the double where keeps the gradient finite where V_ref is 0 (off)
+    alpha_k = alpha * jnp.where(ref > 0.0, (speed / jnp.where(ref > 0.0, ref, 1.0)) ** 2, 1.0)
     phi = jnp.exp(-d_t / params.filter_gm_m)
     phi_g = jnp.exp(-d_t / params.filter_tilt_m)
     phi_r = jnp.exp(-d_t / jnp.where(field_magnitude_given(params), ROLL_M, params.filter_tilt_m))
@@ -273,19 +279,19 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0):
     Q = (params.filter_offset_psd * d_t + (params.filter_turn_sigma * alpha) ** 2 + turn_sigma ** 2,
          params.filter_rate_psd * d_t,
          deg(params.filter_gm_sigma_deg) ** 2 * (1.0 - phi * phi),
-         params.filter_scale_psd * jnp.abs(alpha),
+         params.filter_scale_psd * jnp.abs(alpha_k),
          deg(params.filter_tilt_sigma_deg) ** 2 * (1.0 - phi_g * phi_g),
          roll_variance(params) * (1.0 - phi_r * phi_r))
     P = covariance(f, _N)
-    r = [P[0][m] + a * P[1][m] + alpha * P[3][m] for m in range(_N)]  # row 0 of F P
+    r = [P[0][m] + a * P[1][m] + alpha_k * P[3][m] for m in range(_N)]  # row 0 of F P
     new_P = {}
     for i, j in _UPPER:
         if i == 0:
-            v = r[0] + a * r[1] + alpha * r[3] if j == 0 else scaled(r[j], d[j])
+            v = r[0] + a * r[1] + alpha_k * r[3] if j == 0 else scaled(r[j], d[j])
         else:
             v = scaled(scaled(P[i][j], d[i]), d[j])
         new_P[f"p{i}{j}"] = v + Q[i] if i == j else v
-    delta, beta, c, k, g = f.delta + a * f.beta + alpha * f.k, phi_b * f.beta, phi * f.c, f.k, phi_g * f.g
+    delta, beta, c, k, g = f.delta + a * f.beta + alpha_k * f.k, phi_b * f.beta, phi * f.c, f.k, phi_g * f.g
     return OffsetState.pack(OffsetFields(
         delta=delta, beta=beta, c=c, k=k, g=g, r=phi_r * f.r, **new_P,
         disturbance=f.disturbance, since_absolute=f.since_absolute + d_t, rejected_m=f.rejected_m,

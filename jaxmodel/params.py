@@ -105,6 +105,7 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("filter_follow_hold_rate", 5e-4, "rad/m", "a significant rate larger than this is a large drift: captured into the left/right ratio (with the calibration off: starts filter_follow_hold_m); a tyre mismatch of 0.1 % turns the wheels ~600 µrad/m on a 1.6-m track, dip errors on grades look like 100 (docs/tuning.md, stop 52)"),
     ParamSpec("filter_scale_sigma0", 0.0, "1", "initial sigma of the wheel turn's relative scale error; 0 (default) switches the scale state off, 0.05-0.15 for a vehicle whose track, dpp or a were not identified"),
     ParamSpec("filter_scale_psd", 0.0, "1/rad", "random walk of the wheel turn's scale error per radian turned (load, tyre wear)"),
+    ParamSpec("filter_scale_speed_ref", 0.0, "m/s", "0: the scale state k is the wheel turn's relative error at every speed; > 0: its error at this speed, scaling as V^2 (eq. (8)'s 1 + a V^2 with a wrong a)"),
     ParamSpec("filter_compass_sigma_deg", 2.918, "deg", "white compass noise sigma in the F-DELTA filter (plus filter_ec_weight x E_C)"),
     ParamSpec("filter_compass_corr_m", 0.1148, "m", "white compass noise counted once per this many metres (no gain while standing)"),
     ParamSpec("filter_ec_weight", 0.07855, "1", "weight of the compass error bound E_C (FIG. 8C) in the filter's compass sigma"),
@@ -259,7 +260,7 @@ NON_NEGATIVE_KEYS = (
     "kf_fix_gm_sigma_m", "kf_speed_sigma", "kf_pos_psd", "glitch_pulses", "glitch_dD_rate", "filter_offset_psd",
     "filter_rate_psd", "filter_rate_sigma0", "filter_gm_sigma_deg", "filter_tilt_sigma_deg", "filter_turn_sigma", "filter_ec_weight",
     "filter_compass_lag_s", "filter_field_sigma",
-    "filter_scale_sigma0", "filter_scale_psd", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate",
+    "filter_scale_sigma0", "filter_scale_psd", "filter_scale_speed_ref", "filter_steady_turn_sigma", "filter_rate_significance", "filter_follow_hold_m", "filter_follow_hold_rate",
     "filter_follow_show_rate", "filter_reacquire_drift_deg",
     "hard_iron_min_distance_m", "hard_iron_restart_fraction")
 """Sigmas, noise intensities, gains and thresholds: zero switches the effect off."""
@@ -362,7 +363,15 @@ With it on, the tilt state's sigma stays at 2 deg (stop 25, nominal parameters: 
 The rejected compass is hardened against over 699 m as before stop 26, not the default 300 m (nominal parameters:
 101-103 2.354 -> 2.250 deg, 104-106 1.729 -> 1.714 deg): wheels with another vehicle's parameters disagree with
 a clean compass for long, and the compass is then the one to keep."""
-_TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd")
+UNKNOWN_VELOCITY_COEFFICIENT = {"filter_scale_sigma0": 0.008, "filter_scale_speed_ref": 10.0}
+"""The turn-scale state for a vehicle whose wheel turn's scale is given (a dpp and the track) but not its velocity
+coefficient a: eq. (8)'s 1 + a V^2 with a wrong a puts a relative error of about (a_0 - a) V^2 on every turn, so the
+state k is that error at filter_scale_speed_ref and scales as V^2 (``offset_filter.predict``).  Stop 83, the vehicle's
+own file less a (nominal 1e-4), default mode, geometric mean RMSE after the first minute: another simulator's
+vehicles (a 3e-5 to 2.4e-4), diagnosis seeds 1-4/28-33, 40 drives, 1.319 -> 1.169 deg (prior sigma 0.004 / 0.015:
+1.171 / 1.196; the patent's online refinement of a, T_C 500-2000 m, 1.35-1.33; the true a 1.107); the matrix, 15
+conditions with a compass, tuning seeds 101-103 1.026 -> 0.884, held-out 104-106 1.244 -> 0.850 (docs/tuning.md)."""
+_TURN_SCALE_KEYS = ("filter_scale_sigma0", "filter_scale_psd", "filter_scale_speed_ref")
 DPP_KEYS = ("dpp_left", "dpp_right")
 """The wheels' distance per pulse: with the sensor axle's track they give the wheel turn's scale."""
 
@@ -373,12 +382,18 @@ def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
     track: T_F front, T_R rear; the turn's scale is dpp / T_E, US 4,788,645 eq. (8)) and set no turn-scale key
     themselves; else (params, False).  Since stop 81 a file with the track but no dpp, or a dpp but no track,
     counts as not giving it (independent simulator, diagnosis drives: no track 4.19 -> 1.50 deg with the state; no
-    dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md)."""
+    dpp, found from the compass, 2.59 -> 1.81; docs/tuning.md).  A file that gives the scale but not eq. (8)'s a
+    gets the speed-scaled state of UNKNOWN_VELOCITY_COEFFICIENT instead (stop 83), still (params, False): the
+    vehicle is given."""
     given = set(given_keys)
     track = "T_F" if float(params.sensor_axle) > 0.5 else "T_R"  # the track of the axle that carries the sensors
     scale_given = bool(given & set(DPP_KEYS)) and track in given
-    if scale_given or given & set(_TURN_SCALE_KEYS):
+    if given & set(_TURN_SCALE_KEYS):
         return params, False
+    if scale_given:
+        if "a" in given:
+            return params, False
+        return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNKNOWN_VELOCITY_COEFFICIENT.items()}), False
     return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()
                               if k not in given}), True
 

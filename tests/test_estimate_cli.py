@@ -255,11 +255,36 @@ def test_without_vehicle_parameters_the_turn_scale_is_learned(tmp_path, params_f
         np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
 
 
+def test_without_a_the_turn_error_at_speed_is_learned(tmp_path, capsys):
+    """A file with the dpp and the track but not eq. (8)'s a: the speed-scaled turn-scale state
+    (jaxmodel.UNKNOWN_VELOCITY_COEFFICIENT) runs, said on stderr, and nothing else changes."""
+    cols = drive_columns()
+    drive_path = write_drive(tmp_path / "drive.csv", cols)
+    given = {"sensor_axle": "rear", "T_R": 1.55, "dpp_left": 0.02, "dpp_right": 0.02}
+    path = tmp_path / "no_a.json"
+    path.write_text(json.dumps(given))
+    out = tmp_path / "est.csv"
+    rc, err = run_cli(["estimate", str(drive_path), "--params", str(path), "--out", str(out)], capsys)
+    assert rc == 0, err
+    assert "velocity coefficient a of eq. (8) is not given" in err and "filter_scale_sigma0" not in err
+    params = jaxmodel.make_params(dict(given, **jaxmodel.UNKNOWN_VELOCITY_COEFFICIENT))
+    expected = np.degrees(np.asarray(jaxmodel.run(params, drive_from_columns(cols).inputs).heading))
+    np.testing.assert_allclose(read_table(out)["heading_deg"], expected, atol=1e-9)
+
+
 def test_for_unidentified_vehicle_leaves_given_parameters_alone():
     base = jaxmodel.make_params()
-    assert jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left")) == (base, False)
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left", "a")) == (base, False)
     rear = jaxmodel.make_params(sensor_axle="rear")
-    assert jaxmodel.for_unidentified_vehicle(rear, ("T_R", "dpp_left", "dpp_right", "P")) == (rear, False)
+    assert jaxmodel.for_unidentified_vehicle(rear, ("T_R", "dpp_left", "dpp_right", "P", "a")) == (rear, False)
+    # the scale given but not eq. (8)'s a: the speed-scaled state, and the vehicle still counts as given (stop 83)
+    no_a, nominal = jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left", "dpp_right", "P", "B"))
+    assert not nominal
+    for key, value in jaxmodel.UNKNOWN_VELOCITY_COEFFICIENT.items():
+        assert float(getattr(no_a, key)) == value != float(getattr(base, key))
+    assert no_a._replace(filter_scale_sigma0=base.filter_scale_sigma0,
+                         filter_scale_speed_ref=base.filter_scale_speed_ref) == base
+    assert jaxmodel.for_unidentified_vehicle(base, ("T_F", "dpp_left", "filter_scale_speed_ref")) == (base, False)
     # the track of the other axle does not give the sensors' turn scale
     assert jaxmodel.for_unidentified_vehicle(rear, ("T_F", "dpp_left"))[1]
     assert jaxmodel.for_unidentified_vehicle(base, ("T_R", "dpp_left"))[1]

@@ -278,7 +278,7 @@ def test_fleet_evaluate_runs_a_vehicle_nobody_gave_as_estimate_does(tmp_path):
     from identification.fleet_evaluate import _vehicle_params
 
     (tmp_path / "car-01.json").write_text(json.dumps({"variation_deg": 2.0}))
-    (tmp_path / "car-02.json").write_text(json.dumps({"T_F": 1.55, "dpp_left": 0.021, "dpp_right": 0.021}))
+    (tmp_path / "car-02.json").write_text(json.dumps({"T_F": 1.55, "a": 1.2e-4, "dpp_left": 0.021, "dpp_right": 0.021}))
     per_vehicle = _vehicle_params(tmp_path, ["car-01", "car-02"])
     nobody, _, err1, fit_dpp1 = per_vehicle["car-01"]
     given, _, err2, fit_dpp2 = per_vehicle["car-02"]

@@ -42,23 +42,26 @@ def params():
                            "field_magnitude": 20.0})
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_predict_is_the_dense_kalman_prediction(params, seed):
+@pytest.mark.parametrize("seed, speed_ref", [(0, 0.0), (1, 0.0), (2, 0.0), (3, 10.0)])
+def test_predict_is_the_dense_kalman_prediction(params, seed, speed_ref):
     """x <- F x, P <- F P F^T + Q with the F and Q of ``predict``'s docstring, written as matrices (B_E given: the
-    roll over ROLL_M)."""
+    roll over ROLL_M).  With filter_scale_speed_ref V_ref the scale state's regressor is alpha (V / V_ref)^2 (at 17
+    m/s and V_ref 10, 2.89 alpha); with V_ref 0 the speed is not read."""
     rng = np.random.default_rng(seed)
+    params = params._replace(filter_scale_speed_ref=jnp.asarray(speed_ref))
     fs, x, P = _random_state(params, rng)
-    ad, d_t, alpha = 2.3, 2.3, 0.04
-    got_x, got_P = _dense(of.predict(params, fs, ad, d_t, alpha))
+    ad, d_t, alpha, speed = 2.3, 2.3, 0.04, 17.0
+    got_x, got_P = _dense(of.predict(params, fs, ad, d_t, alpha, speed=speed))
+    alpha_k = alpha * (speed / speed_ref) ** 2 if speed_ref else alpha
     phi = np.exp(-d_t / float(params.filter_gm_m))
     phi_g = np.exp(-d_t / float(params.filter_tilt_m))
     phi_r = np.exp(-d_t / of.ROLL_M)
-    F = np.array([[1, ad, 0, alpha, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, phi, 0, 0, 0], [0, 0, 0, 1, 0, 0],
+    F = np.array([[1, ad, 0, alpha_k, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, phi, 0, 0, 0], [0, 0, 0, 1, 0, 0],
                   [0, 0, 0, 0, phi_g, 0], [0, 0, 0, 0, 0, phi_r]])
     Q = np.diag([float(params.filter_offset_psd) * d_t + (float(params.filter_turn_sigma) * alpha) ** 2,
                  float(params.filter_rate_psd) * d_t,
                  float(deg(params.filter_gm_sigma_deg)) ** 2 * (1 - phi ** 2),
-                 float(params.filter_scale_psd) * alpha,
+                 float(params.filter_scale_psd) * alpha_k,
                  float(deg(params.filter_tilt_sigma_deg)) ** 2 * (1 - phi_g ** 2),
                  np.radians(ft.ROLL_SIGMA_DEG) ** 2 * (1 - phi_r ** 2)])
     np.testing.assert_allclose(got_x, F @ x, rtol=1e-12, atol=1e-15)
