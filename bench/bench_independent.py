@@ -17,14 +17,14 @@ scenarios.py or sensors.py).
 
     python bench/bench_independent.py [SEED ...] [--kinds urban,mixed] [--clean] [--hide-mismatch]
         [--work-dir /tmp/indep/bench] [--disable anomalies,hills] [--extra-args "..."] [--ratio-off-ppm E]
-        [--no-vehicle]
+        [--no-vehicle] [--no-a]
 
 --hide-mismatch gives odocompass the tyres' mean distance per pulse on both wheels (what a user who has
 not measured the mismatch has), so the left/right calibration must find it; the table then also prints
 each drive's final dpp_ratio less the true dpp_right / dpp_left.  --ratio-off-ppm E gives it the tyres' own dpp but
 the right one E ppm off (a file a little off the tyres: docs/tuning.md, stops 69-70).  --no-vehicle gives it no
 vehicle parameters at all, only the counters' modulus and the compass's calibration (the nominal vehicle:
-docs/tuning.md, stop 80).
+docs/tuning.md, stop 80); --no-a the vehicle's own file less its velocity coefficient a (stop 83).
 """
 from __future__ import annotations
 
@@ -122,9 +122,11 @@ def main(argv=None):
                          "small drift it leaves)")
     ap.add_argument("--no-vehicle", action="store_true",
                     help="no vehicle parameters in the file (P, B, T_F, T_R, a, dpp): the nominal vehicle")
+    ap.add_argument("--no-a", action="store_true",
+                    help="the vehicle's own file less its velocity coefficient a (eq. (8))")
     a = ap.parse_args(argv)
-    if sum((a.hide_mismatch, bool(a.ratio_off_ppm), a.no_vehicle)) > 1:
-        ap.error("--hide-mismatch, --ratio-off-ppm and --no-vehicle change the same parameters: give one")
+    if sum((a.hide_mismatch, bool(a.ratio_off_ppm), a.no_vehicle, a.no_a)) > 1:
+        ap.error("--hide-mismatch, --ratio-off-ppm, --no-vehicle and --no-a change the same parameters: give one")
     cli = find_cli()
     kinds = [k for k in a.kinds.split(",") if k]
     modes = [m for m in a.modes.split(",") if m]
@@ -149,6 +151,8 @@ def main(argv=None):
                 params = sim.write_ratio_off_params(params, a.ratio_off_ppm)
             if a.no_vehicle:
                 params = sim.write_no_vehicle_params(params)
+            if a.no_a:
+                params = sim.write_no_a_params(params)
             for mode in modes:
                 out = drive[:-4] + f".est_{mode}.csv"
                 rc, lines, dt, cmd = run_estimate(cli, drive, params, out, mode, extra)

@@ -442,6 +442,14 @@ def write_no_vehicle_params(params_path):
     return _write_beside(params_path, "no_vehicle", {k: v for k, v in params.items() if k in NOT_VEHICLE_KEYS})
 
 
+def write_no_a_params(params_path):
+    """Beside the drive's parameter file, a copy without eq. (8)'s velocity coefficient a (a vehicle measured but for
+    a: ``odocompass estimate`` then learns the turn's error at speed, ``jaxmodel.UNKNOWN_VELOCITY_COEFFICIENT``),
+    ``TAG.no_a.params.json``.  Returns its path."""
+    params = _read_params(params_path)
+    return _write_beside(params_path, "no_a", {k: v for k, v in params.items() if k != "a"})
+
+
 def _read_params(params_path):
     with open(params_path) as f:
         return json.load(f)

@@ -66,6 +66,20 @@ def test_a_file_without_the_vehicle_keeps_the_compass_calibration_and_runs_the_n
     assert jm.for_unidentified_vehicle(params, extra["keys"])[1]  # odocompass estimate's nominal vehicle
 
 
+def test_a_file_without_a_learns_the_turn_error_at_speed(tmp_path):
+    """bench_independent.py --no-a: the vehicle's own file less a; estimate then runs the speed-scaled turn-scale
+    state (jaxmodel.UNKNOWN_VELOCITY_COEFFICIENT) and still counts the vehicle as given."""
+    _, params_path = sim.make_drive("highway", 3, tmp_path, duration=30.0)
+    true = json.loads(Path(params_path).read_text())
+    no_a_path = sim.write_no_a_params(params_path)
+    assert json.loads(Path(no_a_path).read_text()) == {k: v for k, v in true.items() if k != "a"}
+    params, extra = checked_params(no_a_path)
+    learned, nominal = jm.for_unidentified_vehicle(params, extra["keys"])
+    assert not nominal
+    assert float(learned.filter_scale_speed_ref) == jm.UNKNOWN_VELOCITY_COEFFICIENT["filter_scale_speed_ref"]
+    assert float(learned.a) == jm.PARAMETER_SPECS["a"].default != true["a"]
+
+
 @pytest.mark.slow
 def test_grades_are_not_taken_for_hard_iron_but_an_offset_is(tmp_path):
     """Before stop 45 a calibrated compass on 8-9 % grades was called uncalibrated ('the measured horizontal field
