@@ -256,10 +256,11 @@ def predict(params, fs, ad_signed, d_t, alpha, turn_sigma=0.0, speed=0.0):
     ``speed`` V (m/s), read only where filter_scale_speed_ref > 0 (the scale state's regressor alpha (V / V_ref)^2).
 
     x <- F x, P <- F P F^T + Q with F = [[1, AD, 0, alpha_k, 0], [0, phi_b, 0, 0, 0], [0, 0, phi, 0, 0],
-    [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]] (alpha_k = alpha, or alpha (V / V_ref)^2) and r like g (``roll_variance``), over ROLL_M where B_E is given.  The
-    coloured compass error and the tilt error are first-order Gauss-Markov in distance (anomalies and road grades are
-    fixed in space): phi = exp(-|AD| / filter_gm_m) of stationary sigma filter_gm_sigma_deg, phi_g = exp(-|AD| /
-    filter_tilt_m) of sigma filter_tilt_sigma_deg.
+    [0, 0, 0, 1, 0], [0, 0, 0, 0, phi_g]] (alpha_k = alpha, or alpha (V / V_ref)^2) and r like g
+    (``roll_variance``), over ROLL_M where B_E is given.  The coloured compass error and the tilt error are
+    first-order Gauss-Markov in distance (anomalies and road grades are fixed in space): phi = exp(-|AD| /
+    filter_gm_m) of stationary sigma filter_gm_sigma_deg, phi_g = exp(-|AD| / filter_tilt_m) of sigma
+    filter_tilt_sigma_deg.
     """
     f = fs.fields()
     a = ad_signed

@@ -388,14 +388,16 @@ def for_unidentified_vehicle(params: Params, given_keys) -> tuple[Params, bool]:
     given = set(given_keys)
     track = "T_F" if float(params.sensor_axle) > 0.5 else "T_R"  # the track of the axle that carries the sensors
     scale_given = bool(given & set(DPP_KEYS)) and track in given
-    if given & set(_TURN_SCALE_KEYS):
+    if given & set(_TURN_SCALE_KEYS) or (scale_given and "a" in given):
         return params, False
     if scale_given:
-        if "a" in given:
-            return params, False
-        return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNKNOWN_VELOCITY_COEFFICIENT.items()}), False
-    return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in UNIDENTIFIED_VEHICLE.items()
-                              if k not in given}), True
+        return _switched_on(params, UNKNOWN_VELOCITY_COEFFICIENT, given), False
+    return _switched_on(params, UNIDENTIFIED_VEHICLE, given), True
+
+
+def _switched_on(params: Params, settings, given) -> Params:
+    """``params`` with ``settings`` (key -> value) but for the keys the file gave."""
+    return params._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in settings.items() if k not in given})
 
 
 def load_params(path: str | Path) -> tuple[Params, dict[str, Any]]:
