@@ -104,7 +104,22 @@ def step_fit_floor(seeds, samples_per_drive, rng):
             y = np.asarray(rows)[:, 20 - n:20 + n].T
             step = np.linalg.lstsq(design, y, rcond=None)[0][-1]
             floor[(name, scenario)] = (float(np.mean(np.abs(step) >= 0.5)), float(np.std(step)), len(rows))
+    for scenario, rows in events.items():
+        floor[("narrowest band, 8 each side (the vernier)", scenario)] = (_vernier_fires(np.asarray(rows)), float("nan"),
+                                                                           len(rows))
     return floor
+
+
+def _vernier_fires(rows):
+    """The fraction of windows (cumulative dD in pulses, the sample at index 20) where jaxmodel/vernier.py would take
+    a pulse off: a pulse left over narrows the band by more than VERNIER_MARGIN."""
+    import jax.numpy as jnp
+
+    from jaxmodel import vernier as vn
+
+    window = rows[:, 20 - vn.VERNIER_BEFORE:20 + vn.VERNIER_SAMPLES]
+    widths = np.asarray(vn.band_widths(jnp.asarray(window), jnp.ones(len(rows))))
+    return float(np.mean(widths[:, 1] - widths.min(axis=1) > vn.VERNIER_MARGIN))
 
 
 def main():
@@ -133,7 +148,8 @@ def main():
     print(f"\nodometer glitch-bar figure (deg, the bar is 0.1): within on {np.sum(np.abs(figures) <= 0.1)} of "
           f"{figures.size} drives; mean |figure| {np.mean(np.abs(figures)):.3f}, max {np.max(np.abs(figures)):.3f}")
     floor = step_fit_floor(seeds, args.samples_per_drive, np.random.default_rng(0))
-    print("\nfloor: a step fitted where there is none (clean samples of the restored drives)")
+    print("\nfloor: a step fitted where there is none (clean samples of the restored drives; for the vernier's band, the"
+          " fraction where it would take a pulse off)")
     print("| estimator | scenario | samples | step >= 0.5 pulse | step std (pulses) |\n|---|---|---|---|---|")
     for (name, scenario), (frac, std, n) in floor.items():
         print(f"| {name} | {scenario} | {n} | {100 * frac:.0f} % | {std:.2f} |")

@@ -22,9 +22,9 @@ predicted dD is removed from it, so AD and the turn of that sample stay what the
 the wheel keeps its own count.  That whole number is exact when it is a counter modulus of
 ``COMMON_MODULI`` (a counter that wraps at another modulus than ``counter_modulus`` says) or
 undoes the pulses last removed from that wheel (a spike that returns), within
-``SNAP_PULSES``; otherwise the rounding can miss by one pulse, and ``_vernier`` estimates the
-removal again from both sides of it (the cumulative dD before and after) and takes off the pulse it
-missed, VERNIER_SAMPLES samples later.  When both wheels fail (or after
+``SNAP_PULSES``; otherwise the rounding can miss by one pulse, and jaxmodel/vernier.py estimates the
+removal again from both sides of it (the narrowest band of the cumulative dD before and after) and takes
+off the pulse it missed, ``VERNIER_SAMPLES`` samples later.  When both wheels fail (or after
 ``GUARD_MAX_SUBSTITUTED`` substitutions in a row) both are replaced by their predictions for
 that sample.  The counter references always follow the counters (resync), so a burst that
 permanently offsets one counter costs nothing after its sample, and a spike costs nothing
@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from . import vernier as _vernier
 from .packed import computed_once, packed_state
 from .track import max_curvature
 
@@ -98,32 +99,21 @@ def course_tolerance(params, dpp, step_dt):
     return params.glitch_pulses * dpp + params.glitch_dD_rate * step_dt * stretch
 
 
-class GuardFields(NamedTuple):
-    rate_left: jnp.ndarray   # m/s, time-smoothed left wheel speed (signed)
-    rate_right: jnp.ndarray  # m/s
-    rate_dD: jnp.ndarray     # m/s, time-smoothed dD rate
-    substituted: jnp.ndarray  # substituted samples in a row
-    removed_left: jnp.ndarray   # pulses last removed from the left counter (0: none pending)
-    removed_right: jnp.ndarray  # pulses last removed from the right counter
+_GUARD_FIELDS = (
+    "rate_left",    # m/s, time-smoothed left wheel speed (signed)
+    "rate_right",   # m/s
+    "rate_dD",      # m/s, time-smoothed dD rate
+    "substituted",  # substituted samples in a row
+    "removed_left",   # pulses last removed from the left counter (0: none pending)
+    "removed_right",  # pulses last removed from the right counter
     # The raw counts' dD (signed as the travel) and |AD| over an exponential window of GUARD_WINDOW_M travelled
     # metres (m, m): a curvature no front axle can drive (``impossible``).
-    window_dD: jnp.ndarray
-    window_AD: jnp.ndarray
-    # The two-sided re-estimate of a rounded removal (``_vernier``), on the sample index k: running means
-    # of D and k D of the cumulative dD over the last ~1/VERNIER_LEVEL_WEIGHT samples, relative to the
-    # current sample (m, m); for a pending removal, the wheel it was taken from (+1 left, -1 right, 0 none),
-    # the pulses removed and those two means before it; from it on, the cumulative dD since the sample
-    # before it (m), the sums of D and k D (m) and the count of samples.
-    m_D: jnp.ndarray
-    m_kD: jnp.ndarray
-    vernier_wheel: jnp.ndarray
-    vernier_removed: jnp.ndarray
-    before_D: jnp.ndarray
-    before_kD: jnp.ndarray
-    after_D: jnp.ndarray
-    sum_D: jnp.ndarray
-    sum_kD: jnp.ndarray
-    after_n: jnp.ndarray
+    "window_dD",
+    "window_AD",
+)
+GuardFields = NamedTuple("GuardFields", [(name, jnp.ndarray) for name in _GUARD_FIELDS + _vernier.FIELDS])
+"""The guard's fields, then the two-sided re-estimate's (jaxmodel/vernier.py ``FIELDS``)."""
+_VERNIER = GuardFields._fields.index(_vernier.FIELDS[0])
 
 
 GuardState = packed_state(GuardFields, "GuardState", "State of the odometer plausibility guard (one float64 vector).")
@@ -167,7 +157,7 @@ class _Substitution(NamedTuple):
     fix: jnp.ndarray      # the sample's motion was substituted
     kept: jnp.ndarray     # the sample's motion is used
     single: jnp.ndarray   # pulses were removed from one wheel
-    start: jnp.ndarray    # that removal was rounded (``_vernier`` estimates it again)
+    start: jnp.ndarray    # that removal was rounded (jaxmodel/vernier.py estimates it again)
     blame_left: jnp.ndarray  # the wheel at fault is the left one
     pulses: jnp.ndarray   # whole pulses removed from the wheel at fault
     pulses_left: jnp.ndarray
@@ -203,8 +193,8 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     window, impossible, dead_left, one_dead = _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track)
     s = _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts_ok, dpp_left, dpp_right)
     usable = time_ok & s.kept & ~held  # the samples the rates, the vernier and the window learn from
-    d_left, d_right, v, fired = _vernier(g, gs, s.d_left, s.d_right, c.dD, usable, s.start, s.single,
-                                         jnp.where(s.blame_left, 1.0, -1.0), s.pulses, dpp_left, dpp_right)
+    d_left, d_right, v, fired = _vernier.vernier(gs.vector[..., _VERNIER:], s.d_left, s.d_right, usable, s.start,
+                                                 s.single, jnp.where(s.blame_left, 1.0, -1.0), dpp_left, dpp_right)
     new = _next_guard_state(g, s, c.turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v)
     dD_sigma = _substituted_sigma(d_left, d_right, s.fix, impossible, c_max, track, step_dt)
     return d_left, d_right, s.raw_ok & ~fired, c.speed_ok, s.kept, dD_sigma, new
@@ -274,7 +264,7 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     d_right = jnp.where(drop | ~counts_ok, 0.0, d_right)
     kept = computed_once(counts_ok & ~drop)
     # A rounded removal (not an exact modulus or returning spike) is estimated again, two-sided, once
-    # VERNIER_SAMPLES samples after it have been seen; the pulses it missed are taken off then.
+    # vernier.VERNIER_SAMPLES samples from it on have been seen; the pulse it missed is taken off then.
     single = fix & ~both
     # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
     start = computed_once(single & ~exact & ~impossible)
@@ -339,78 +329,6 @@ def _substituted_sigma(d_left, d_right, fix, impossible, c_max, track, step_dt):
     # acceleration bound): its uncertainty (m of dD).
     ad_kept = jnp.abs(0.5 * (d_left + d_right))
     return jnp.where(fix & impossible, jnp.minimum(c_max * ad_kept, lateral_limit / jnp.maximum(ad_kept, 1e-3)), 0.0)
-
-
-VERNIER_SAMPLES = 5.0
-"""Samples after a rounded removal (itself included) before it is estimated again from both sides."""
-VERNIER_LEVEL_WEIGHT = 0.2
-"""Per-sample weight of the running means of the cumulative dD before a removal (~5 samples)."""
-VERNIER_CLEAR = 0.45
-"""A re-estimate corrects only when within this many pulses of a whole number (tuning seeds 101-104: one
-wrong correction at 27.496 pulses, the right ones within 0.40; glitch drives of seeds 101-111, every mode
-within 0.1 deg on 19 of 33 with or without it, odometer mean |change| 0.258 -> 0.242 deg)."""
-_W = VERNIER_LEVEL_WEIGHT
-_M_K, _M_KK = -(1.0 - _W) / _W, (1.0 - _W) * (2.0 - _W) / _W ** 2
-"""Means of k and k^2 under those weights (k = -1, -2, ... before the current sample, which is k = 0)."""
-_VERNIER = GuardFields._fields.index("vernier_wheel")
-_KEEP_WHEN_DONE = jnp.array([0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0])
-"""Of the pending fields (vernier_wheel ... after_n), those kept when a removal's estimate is done."""
-
-
-def _vernier(g, gs, d_left, d_right, raw_dD, usable, start, single, wheel, removed, dpp_left, dpp_right):
-    """The two-sided re-estimate of a rounded removal (the fields from ``m_D`` on, as one vector).
-
-    One sample's dD predicted from the rate before it (what the guard substitutes) cannot tell its own
-    quantization: on a straight road the per-sample dD alternates between two whole numbers of pulses, and
-    rounding the removal then leaves one spurious pulse, 1.1 deg of wheel heading for good on the matrix's
-    vehicles.  The cumulative dD D(k) can: a straight line with a step B at the removal, fitted by least
-    squares to ~5 samples before (running means) and VERNIER_SAMPLES from it on (on the sample index: the
-    samples are taken as evenly spaced), averages the quantization out; B in whole pulses of the wheel at
-    fault, less what was removed, is taken off that wheel on the sample that completes the window.
-    ``g``, ``gs``: the guard's fields and packed state; ``start``: this sample made a rounded removal of
-    ``removed`` pulses from ``wheel`` (+1 left, -1 right); ``single``: it removed pulses from one wheel (an
-    exact removal cancels a pending estimate); ``usable``: kept and in order in time.
-    Returns (d_left, d_right, the fields from ``m_D`` on (..., 10), whether a correction was applied).
-    """
-    pending = computed_once((g.vernier_wheel != 0.0) & usable & ~single)
-    # From the removal on (k = 1, 2, ...), D relative to the sample before it; the removal counts its raw dD.
-    next_D = g.after_D + d_left - d_right
-    next_n = g.after_n + 1.0
-    grown = gs.vector[..., _VERNIER:] + jnp.stack(
-        [jnp.zeros_like(next_D)] * 4 + [d_left - d_right, next_D, next_n * next_D, jnp.ones_like(next_D)], axis=-1)
-    started = jnp.stack([wheel, removed, g.m_D, g.m_kD, raw_dD, raw_dD, raw_dD, jnp.ones_like(raw_dD)], axis=-1)
-    p = jnp.where(start[..., None], started, jnp.where(pending[..., None], grown, gs.vector[..., _VERNIER:]))
-    wheel_now, removed_now, before_D, before_kD, after_D, sum_D, sum_kD, after_n = (p[..., i] for i in range(8))
-    due = pending & (after_n >= VERNIER_SAMPLES)
-    # Least squares for D = a + b k + B H (H = 1 from the removal on); the samples before weigh as
-    # 1/VERNIER_LEVEL_WEIGHT samples with their running means.
-    nb, na = 1.0 / _W, after_n
-    sum_k, sum_kk = na * (na + 1.0) / 2.0, na * (na + 1.0) * (2.0 * na + 1.0) / 6.0
-    s1, sk, skk = nb + na, nb * _M_K + sum_k, nb * _M_KK + sum_kk
-    sd, skd = nb * before_D + sum_D, nb * before_kD + sum_kD
-    sh, skh, shd = na, sum_k, sum_D
-    det = s1 * (skk * sh - skh * skh) - sk * (sk * sh - skh * sh) + sh * (sk * skh - skk * sh)
-    det_b = s1 * (skk * shd - skd * skh) - sk * (sk * shd - skd * sh) + sd * (sk * skh - skk * sh)
-    jump = det_b / jnp.where(jnp.abs(det) > 0.0, det, 1.0)
-    left = wheel_now > 0.0
-    dpp = jnp.where(left, dpp_left, dpp_right)
-    estimate = jnp.where(left, 1.0, -1.0) * jump / dpp
-    missed = jnp.round(estimate) - removed_now
-    # Only a clear estimate corrects: one halfway between two whole numbers says nothing.
-    clear = jnp.abs(estimate - jnp.round(estimate)) < VERNIER_CLEAR
-    fired = due & (jnp.abs(det) > 0.0) & (jnp.abs(missed) == 1.0) & clear
-    d_left = d_left - jnp.where(fired & left, missed * dpp_left, 0.0)
-    d_right = d_right - jnp.where(fired & ~left, missed * dpp_right, 0.0)
-    # Done when due, or when an exact removal (a modulus, a returning spike) cancels it.
-    done = computed_once(due | (single & ~start))
-    p = jnp.where(done[..., None], p * _KEEP_WHEN_DONE, p)
-    # The running means move on every kept sample: the old samples' coordinates shift by (-1, -dD), the new
-    # one is (0, 0).
-    w = jnp.where(usable, _W, 0.0)
-    dD = jnp.where(usable, d_left - d_right, 0.0)
-    step = jnp.where(usable, 1.0, 0.0)
-    means = jnp.stack([(1.0 - w) * (g.m_D - dD), (1.0 - w) * (g.m_kD - step * g.m_D - dD * _M_K + step * dD)], axis=-1)
-    return d_left, d_right, jnp.concatenate([means, p], axis=-1), fired
 
 
 def _curvature_window(g, d_left, d_right, usable):

@@ -284,7 +284,7 @@ def test_speed_scaled_turn_state_holds_a_vehicle_given_but_for_its_a():
 def test_a_rounded_burst_removal_is_corrected_from_both_sides():
     """highway/glitches/102: two bursts whose removal, predicted from the rate before them, rounded one pulse
     wrong (1.09 deg of wheel heading each, -1.99 deg at the end in odometer mode without the two-sided
-    re-estimate, plausibility._vernier); with it the odometer ends where the clean drive does."""
+    re-estimate, jaxmodel/vernier.py); with it the odometer ends where the clean drive does."""
     drive = sc.make_drive("highway", "glitches", 102)
     clean = sc.without_glitches(drive)
     end = lambda d: float(_run(d, mode="odometer", robust=True).wheel_heading[-1])  # noqa: E731
