@@ -105,8 +105,8 @@ def step_fit_floor(seeds, samples_per_drive, rng):
             step = np.linalg.lstsq(design, y, rcond=None)[0][-1]
             floor[(name, scenario)] = (float(np.mean(np.abs(step) >= 0.5)), float(np.std(step)), len(rows))
     for scenario, rows in events.items():
-        floor[("narrowest band, 8 each side (the vernier)", scenario)] = (_vernier_fires(np.asarray(rows)), float("nan"),
-                                                                           len(rows))
+        band = "narrowest band, 8 each side (the vernier)"
+        floor[(band, scenario)] = (_vernier_fires(np.asarray(rows)), float("nan"), len(rows))
     return floor
 
 
@@ -148,8 +148,8 @@ def main():
     print(f"\nodometer glitch-bar figure (deg, the bar is 0.1): within on {np.sum(np.abs(figures) <= 0.1)} of "
           f"{figures.size} drives; mean |figure| {np.mean(np.abs(figures)):.3f}, max {np.max(np.abs(figures)):.3f}")
     floor = step_fit_floor(seeds, args.samples_per_drive, np.random.default_rng(0))
-    print("\nfloor: a step fitted where there is none (clean samples of the restored drives; for the vernier's band, the"
-          " fraction where it would take a pulse off)")
+    print("\nfloor: a step fitted where there is none (clean samples of the restored drives; for the vernier's band,"
+          " the fraction where it would take a pulse off)")
     print("| estimator | scenario | samples | step >= 0.5 pulse | step std (pulses) |\n|---|---|---|---|---|")
     for (name, scenario), (frac, std, n) in floor.items():
         print(f"| {name} | {scenario} | {n} | {100 * frac:.0f} % | {std:.2f} |")
