@@ -118,8 +118,9 @@ def _vernier_fires(rows):
     from jaxmodel import vernier as vn
 
     window = rows[:, 20 - vn.VERNIER_BEFORE:20 + vn.VERNIER_SAMPLES]
-    widths = np.asarray(vn.band_widths(jnp.asarray(window), jnp.ones(len(rows))))
-    return float(np.mean(widths[:, 1] - widths.min(axis=1) > vn.VERNIER_MARGIN))
+    pulse = jnp.ones(len(rows))
+    _, clear = vn.leftover_pulse(vn.band_widths(jnp.asarray(window), pulse), pulse)
+    return float(np.mean(np.asarray(clear)))
 
 
 def main():

@@ -159,7 +159,6 @@ class _Substitution(NamedTuple):
     single: jnp.ndarray   # pulses were removed from one wheel
     start: jnp.ndarray    # that removal was rounded (jaxmodel/vernier.py estimates it again)
     blame_left: jnp.ndarray  # the wheel at fault is the left one
-    pulses: jnp.ndarray   # whole pulses removed from the wheel at fault
     pulses_left: jnp.ndarray
     pulses_right: jnp.ndarray
 
@@ -249,7 +248,7 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     # Flags read by every field of the state: computed once (packed.computed_once).
     fix = computed_once(counts_ok & ~raw_ok & trusting)
     new_left, new_right = _predicted_motion(c, d_left, d_right, impossible, blame_left, both)
-    pulses, exact, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left,
+    exact, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left,
                                                                 dpp_left, dpp_right)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
@@ -268,8 +267,7 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     single = fix & ~both
     # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
     start = computed_once(single & ~exact & ~impossible)
-    return _Substitution(d_left, d_right, raw_ok, fix, kept, single, start, blame_left, pulses, pulses_left,
-                         pulses_right)
+    return _Substitution(d_left, d_right, raw_ok, fix, kept, single, start, blame_left, pulses_left, pulses_right)
 
 
 def _blame_left(c, d_left, d_right, impossible, dead_left, one_dead):
@@ -294,15 +292,16 @@ def _predicted_motion(c, d_left, d_right, impossible, blame_left, both):
 
 
 def _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left, dpp_left, dpp_right):
-    """The whole number of spurious pulses to remove from the wheel at fault (``_snap``).  Returns (pulses, exact,
-    pulses_left, pulses_right)."""
+    """The whole number of spurious pulses to remove from the wheel at fault (``_snap``).  Returns (exact,
+    pulses_left, pulses_right): whether it was a modulus or a returning spike, and the pulses removed from each wheel
+    (0 from the other)."""
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
     # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
     # Only the wheel at fault has pulses removed: one snap, on its count.
     pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
                           jnp.where(blame_left, g.removed_left, g.removed_right))
     pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
-    return pulses, exact, pulses_left, pulses_right
+    return exact, pulses_left, pulses_right
 
 
 def _next_guard_state(g, s, turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v):

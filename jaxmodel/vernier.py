@@ -71,6 +71,17 @@ def band_widths(D, step):
     return jnp.min(jnp.max(residual, axis=-2) - jnp.min(residual, axis=-2), axis=-1)
 
 
+def leftover_pulse(widths, step):
+    """The residual step (pulses, -1, 0 or +1) whose band is the narrowest, and whether it is clear: its band is
+    narrower than the uncorrected one by VERNIER_MARGIN pulses.
+
+    widths: (..., 3) ``band_widths``; step: (...,) one pulse of dD (m, signed).  Returns ((...,), (...,) bool)."""
+    narrowest = jnp.min(widths, axis=-1)
+    missed = jnp.max(jnp.where(widths == narrowest[..., None], _lifted(_CANDIDATES, narrowest.ndim), -jnp.inf), axis=-1)
+    clear = (missed != 0.0) & (widths[..., 1] - narrowest > VERNIER_MARGIN * jnp.abs(step))
+    return missed, clear
+
+
 def vernier(fields, d_left, d_right, usable, start, single, wheel, dpp_left, dpp_right):
     """One sample of the re-estimate.
 
@@ -91,10 +102,8 @@ def vernier(fields, d_left, d_right, usable, start, single, wheel, dpp_left, dpp
     left = wheel_now > 0.0
     # A value read by every element of the bands: computed once (packed.value_once).
     step = value_once(jnp.where(left, dpp_left, -dpp_right))  # one pulse of the wheel at fault in dD
-    widths = band_widths(ring @ _CUMULATIVE.T, step)
-    narrowest = jnp.min(widths, axis=-1)
-    missed = jnp.max(jnp.where(widths == narrowest[..., None], _lifted(_CANDIDATES, narrowest.ndim), -jnp.inf), axis=-1)
-    fired = due & (missed != 0.0) & (widths[..., 1] - narrowest > VERNIER_MARGIN * jnp.abs(step))
+    missed, clear = leftover_pulse(band_widths(ring @ _CUMULATIVE.T, step), step)
+    fired = due & clear
     taken = jnp.where(fired, missed, 0.0)
     d_left = d_left - jnp.where(left, taken * dpp_left, 0.0)
     d_right = d_right - jnp.where(left, 0.0, taken * dpp_right)
