@@ -1,7 +1,10 @@
 """odocompass fleet identify / evaluate on a real local Ray cluster (issue 13).
 
-One cluster (``ray.init(num_cpus=2)``) is shared by every test of the module; the fleet commands
-find it initialised and use it as it is.  The fleet is small: four simulated vehicles with known
+One cluster (``ray.init(num_cpus=1)``) is shared by every test of the module; the fleet commands
+find it initialised and use it as it is.  One CPU: the suite already runs two pytest workers on this 2-core machine,
+and the fixture's two tasks (the same padded program) then run one after the other, the second loading the first's
+compiled program from the run's cache instead of compiling it beside it (the fixture alone, beside a benchmark: 129 s
+with two CPUs, 108 s with one; the whole suite's profile had it at 286 s with two).  The fleet is small: four simulated vehicles with known
 parameters (two short drives each) and one vehicle whose log is corrupt.  One ``fleet identify``
 run (a module fixture) is inspected by several tests; rerunning it checks the resume.
 """
@@ -44,7 +47,7 @@ def ray_cluster():
 
     started = not ray.is_initialized()
     if started:
-        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
+        ray.init(address="local", num_cpus=1, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {XLA_ONE_THREAD}".strip()}})
     yield
     if started:

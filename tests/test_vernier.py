@@ -25,6 +25,25 @@ def test_band_widths_of_a_line_with_a_step_of_one_pulse():
     np.testing.assert_allclose(widths, [1.75, 0.875, 0.0], atol=1e-12)
 
 
+def test_no_pulse_is_taken_off_where_no_line_fits_the_window():
+    """A bend through the window: D = 0.1 k^2 + H (a yaw acceleration, a pulse left over, dpp 1).  Taking the pulse
+    off leaves the parabola, whose minimax line has the slope of its ends (1.5) and touches k = 0, 15 and 7, 8 (0.1 k^2
+    - 1.5 k = -5.6 there): a band of 5.6 pulses (worked by hand), narrower than the uncorrected one by more than
+    VERNIER_MARGIN; but wider than the two pulses the counts' quantization can leave about a line (VERNIER_MAX_BAND),
+    so the turn rate changed within the window, and the pulse is left alone."""
+    k = np.arange(W, dtype=float)
+    D = 0.1 * k ** 2 + (k >= vn.VERNIER_BEFORE)
+    widths = np.asarray(vn.band_widths(jnp.asarray(D), jnp.asarray(1.0)))
+    assert widths[2] == pytest.approx(5.6, abs=1e-12)
+    assert widths[0] > widths[1] > widths[2] + vn.VERNIER_MARGIN
+    missed, clear = vn.leftover_pulse(jnp.asarray(widths), jnp.asarray(1.0))
+    assert float(missed) == 1.0 and not bool(clear)
+    # The same step on a line (band 0 once it is off) is clear.
+    missed, clear = vn.leftover_pulse(vn.band_widths(jnp.asarray(k + (k >= vn.VERNIER_BEFORE)), jnp.asarray(1.0)),
+                                      jnp.asarray(1.0))
+    assert float(missed) == 1.0 and bool(clear)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.floats(0.3, 3.0), st.floats(-0.3, 0.3), st.floats(-0.02, 0.02),
        st.sampled_from([-1.0, 0.0, 1.0]))
