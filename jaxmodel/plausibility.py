@@ -249,7 +249,7 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     fix = computed_once(counts_ok & ~raw_ok & trusting)
     new_left, new_right = _predicted_motion(c, d_left, d_right, impossible, blame_left, both)
     exact, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left,
-                                                                dpp_left, dpp_right)
+                                                        dpp_left, dpp_right)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
     new_right = jnp.where(both, new_right, d_right - spurious_right)

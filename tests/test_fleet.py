@@ -4,9 +4,9 @@ One cluster (``ray.init(num_cpus=1)``) is shared by every test of the module; th
 find it initialised and use it as it is.  One CPU: the suite already runs two pytest workers on this 2-core machine,
 and the fixture's two tasks (the same padded program) then run one after the other, the second loading the first's
 compiled program from the run's cache instead of compiling it beside it (the fixture alone, beside a benchmark: 129 s
-with two CPUs, 108 s with one; the whole suite's profile had it at 286 s with two).  The fleet is small: four simulated vehicles with known
-parameters (two short drives each) and one vehicle whose log is corrupt.  One ``fleet identify``
-run (a module fixture) is inspected by several tests; rerunning it checks the resume.
+with two CPUs, 108 s with one; the whole suite's profile had it at 286 s with two).  The fleet is small: four
+simulated vehicles with known parameters (two short drives each) and one vehicle whose log is corrupt.  One
+``fleet identify`` run (a module fixture) is inspected by several tests; rerunning it checks the resume.
 """
 
 from __future__ import annotations
