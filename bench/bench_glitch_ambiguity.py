@@ -112,7 +112,7 @@ def step_fit_floor(seeds, samples_per_drive, rng):
 
 def _vernier_fires(rows):
     """The fraction of windows (cumulative dD in pulses, the sample at index 20) where jaxmodel/vernier.py would take
-    a pulse off: a pulse left over narrows the band by more than VERNIER_MARGIN."""
+    a pulse off (its decision, ``vernier.leftover_pulse``, on these windows)."""
     import jax.numpy as jnp
 
     from jaxmodel import vernier as vn
