@@ -131,3 +131,34 @@ def test_the_kalman_mode_follows_a_small_hidden_tyre_mismatch(tmp_path):
     rmse = float(np.sqrt(np.mean(err[after_first_minute] ** 2)))
     assert rmse < 12.0, rmse
     assert np.max(np.abs(err[after_first_minute])) < 30.0
+
+
+def test_the_glitched_copy_adds_three_bursts_and_two_spikes_while_moving(tmp_path):
+    """bench_independent.add_glitches (the glitch bar on this simulator's vehicles): the copy's counters differ from
+    the drive's by three bursts of 8-40 pulses counted from their sample on and two one-sample spikes of +-3000 counts,
+    all after the first minute, wrapped at the counters' modulus; every other column is the drive's."""
+    import bench_independent as bi
+
+    path, params_path = sim.make_drive("highway", 3, tmp_path, duration=300.0)
+    pj = json.loads(Path(params_path).read_text())
+    modulus = pj["counter_modulus"]
+    glitched, t_first = bi.add_glitches(path, modulus, 0.5 * (pj["dpp_left"] + pj["dpp_right"]), seed=3)
+    names = ("time_s", "left_pulses", "right_pulses", "compass_x", "compass_y", "ref_heading_deg")
+    a, b = bi.read_cols(path, names), bi.read_cols(glitched, names)
+    for name in ("time_s", "compass_x", "compass_y", "ref_heading_deg"):
+        np.testing.assert_array_equal(a[name], b[name])
+    bursts, spikes, first = [], [], []
+    for wheel in ("left_pulses", "right_pulses"):
+        extra = (b[wheel] - a[wheel]) % modulus
+        extra = np.where(extra > modulus / 2, extra - modulus, extra)  # the pulses added, signed
+        assert np.all((b[wheel] >= 0) & (b[wheel] < modulus))
+        change = np.diff(extra, prepend=0.0)
+        for i in np.flatnonzero(change):
+            first.append(a["time_s"][i])
+            if i + 1 < len(change) and change[i + 1] == -change[i]:
+                spikes.append(change[i])
+            elif i == 0 or change[i - 1] != -change[i]:
+                bursts.append(change[i])
+    assert len(bursts) == 3 and all(8 <= n <= 40 for n in bursts), bursts
+    assert sorted(abs(s) % modulus for s in spikes) in ([3000.0, 3000.0], [modulus - 3000.0] * 2), spikes
+    assert min(first) == t_first and t_first >= a["time_s"][0] + 60.0
