@@ -52,7 +52,7 @@ __all__ = ["Unsupported", "Lowered", "Program", "lower_program", "lower_jaxpr", 
 
 
 _CALL_PRIMS = ("jit", "pjit", "closed_call", "core_call", "remat", "checkpoint", "custom_jvp_call",
-               "custom_vjp_call", "custom_vjp_call_jaxpr", "custom_lin")
+               "custom_vjp_call", "custom_vjp_call_jaxpr", "custom_lin", "custom_vmap_call")
 
 
 class _Emitter:
@@ -153,7 +153,7 @@ class _Emitter:
     def _inline_call(self, eqn, ins):
         """Call primitives (jit, pjit, custom_jvp_call, ...): the called jaxpr lowered in place."""
         name, p = eqn.primitive.name, eqn.params
-        sub = p.get("jaxpr") or p.get("call_jaxpr") or p.get("fun_jaxpr")
+        sub = p.get("jaxpr") or p.get("call_jaxpr") or p.get("fun_jaxpr") or p.get("call")
         if sub is None:
             raise Unsupported(f"call primitive {name} without a jaxpr")
         if hasattr(sub, "consts"):
@@ -164,6 +164,8 @@ class _Emitter:
         """Elementwise primitives: comparisons, selections, conversions and the unary/binary arithmetic."""
         name, p = eqn.primitive.name, eqn.params
         in_avals = [v.aval for v in eqn.invars]
+        if name == "stop_gradient":  # an identity on values (jaxmodel/seldom.py's arguments)
+            return [ins[0]]
         if name in _COMPARE:
             return [self.elementwise(_COMPARE[name], ins, "bool")]
         if name == "select_n":

@@ -22,6 +22,7 @@ import numpy as np
 import jax.numpy as jnp
 
 from .packed import computed_once, value_once
+from .seldom import where_needed
 
 VERNIER_BEFORE = 8
 """Kept samples before a rounded removal that its re-estimate fits."""
@@ -109,7 +110,9 @@ def vernier(fields, d_left, d_right, usable, start, single, wheel, dpp_left, dpp
     left = wheel_now > 0.0
     # A value read by every element of the bands: computed once (packed.value_once).
     step = value_once(jnp.where(left, dpp_left, -dpp_right))  # one pulse of the wheel at fault in dD
-    missed, clear = leftover_pulse(band_widths(ring @ _CUMULATIVE.T, step), step)
+    # Read on the due sample only: computed on the samples where some drive of the batch is due (jaxmodel/seldom.py).
+    widths = where_needed(due, lambda dD, pulse: band_widths(dD @ _CUMULATIVE.T, pulse), ring, step)
+    missed, clear = leftover_pulse(widths, step)
     fired = due & clear
     taken = jnp.where(fired, missed, 0.0)
     d_left = d_left - jnp.where(left, taken * dpp_left, 0.0)
