@@ -4,7 +4,8 @@ Under ``vmap`` a ``lax.cond`` whose predicate differs per drive becomes a select
 drive on every sample.  The vernier's band widths (jaxmodel/vernier.py), read only on the eighth sample after a
 rounded burst removal, cost a third of the default filter's time that way (bench/bench_run.py, stop 87).
 ``where_needed`` is batched by its own rule (``jax.custom_batching.custom_vmap``): one ``lax.cond`` on whether any
-drive of the batch needs the value, which then computes it for all of them and keeps it where needed.
+drive of the batch needs the value, which then computes it for all of them and keeps it where needed.  On
+XLA:CPU only: elsewhere it is the plain selection.
 
 Its value is a decision's input and carries no derivative (``custom_vmap`` has no reverse-mode rule): the arguments
 pass through ``lax.stop_gradient``.
@@ -28,6 +29,10 @@ def _kept_where(needed, value):
 
 def _computed_if_any(needed, fn, args):
     """fn(*args) kept where ``needed``, when any element of ``needed`` is true; zeros, without computing it, if none."""
+    if jax.default_backend() != "cpu":
+        # An accelerator reads a cond's predicate back to the host on every step of the scan; its vector units
+        # compute the value for every drive at little cost (not measured here: no accelerator at stop 87).
+        return _kept_where(needed, fn(*args))
     out_shape = jax.eval_shape(fn, *args)
     return lax.cond(jnp.any(needed), lambda: _kept_where(needed, fn(*args)),
                     lambda: jnp.zeros(out_shape.shape, out_shape.dtype))
