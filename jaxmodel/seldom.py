@@ -2,7 +2,7 @@
 
 Under ``vmap`` a ``lax.cond`` whose predicate differs per drive becomes a selection: both branches run for every
 drive on every sample.  The vernier's band widths (jaxmodel/vernier.py), read only on the eighth sample after a
-rounded burst removal, cost a third of the default filter's time that way (bench/bench_run.py, stop 87).
+rounded burst removal, cost 40-60 % of the default filter's time that way (bench/bench_run.py, stop 87).
 ``where_needed`` is batched by its own rule (``jax.custom_batching.custom_vmap``): one ``lax.cond`` on whether any
 drive of the batch needs the value, which then computes it for all of them and keeps it where needed.  On
 XLA:CPU only: elsewhere it is the plain selection.

@@ -35,7 +35,8 @@ def test_the_value_is_the_function_where_needed_and_zero_elsewhere_batched_or_no
     np.testing.assert_allclose(shared[0], expected[0], rtol=1e-12)
 
 
-def test_a_sample_no_drive_needs_does_not_compute_it():
+def _callbacks_in_a_batch():
+    """How many times the function runs in a batch of 4 drives x 30 samples where two samples need it."""
     calls = []
 
     def counted(x):
@@ -51,7 +52,18 @@ def test_a_sample_no_drive_needs_does_not_compute_it():
     needed = np.zeros((4, 30), bool)
     needed[1, 7] = needed[3, 7] = needed[0, 20] = True  # two samples of the batch need it
     jax.block_until_ready(jax.jit(jax.vmap(run))(needed, np.ones((4, 30))))
-    assert len(calls) == 2
+    return len(calls)
+
+
+def test_a_sample_no_drive_needs_does_not_compute_it():
+    assert _callbacks_in_a_batch() == 2
+
+
+def test_off_xla_cpu_it_is_the_plain_selection(monkeypatch):
+    """An accelerator would read the cond's predicate back every step: there the function runs on every sample."""
+    import jaxmodel.seldom as seldom
+    monkeypatch.setattr(seldom.jax, "default_backend", lambda: "gpu")
+    assert _callbacks_in_a_batch() >= 30
 
 
 def test_it_passes_no_derivative_and_leaves_the_others_intact():
