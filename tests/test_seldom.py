@@ -1,5 +1,7 @@
 """jaxmodel/seldom.py: a value computed only on the samples where some drive needs it."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,11 +14,11 @@ def _widths(x):
     return jnp.stack([jnp.sin(x), x * x])
 
 
-def _scan(needed, xs):
-    """The sum over a drive of where_needed's value, as a scan step uses it."""
+def _scan(needed, xs, fn=_widths):
+    """The sum over a drive of where_needed's value of ``fn``, as a scan step uses it."""
     def body(total, sample):
         flag, x = sample
-        return total + where_needed(flag, _widths, x), None
+        return total + where_needed(flag, fn, x), None
     return lax.scan(body, jnp.zeros(2), (needed, xs))[0]
 
 
@@ -43,15 +45,9 @@ def _callbacks_in_a_batch():
         jax.debug.callback(lambda: calls.append(1))
         return _widths(x)
 
-    def run(needed, xs):
-        def body(total, sample):
-            flag, x = sample
-            return total + where_needed(flag, counted, x), None
-        return lax.scan(body, jnp.zeros(2), (needed, xs))[0]
-
     needed = np.zeros((4, 30), bool)
     needed[1, 7] = needed[3, 7] = needed[0, 20] = True  # two samples of the batch need it
-    jax.block_until_ready(jax.jit(jax.vmap(run))(needed, np.ones((4, 30))))
+    jax.block_until_ready(jax.jit(jax.vmap(functools.partial(_scan, fn=counted)))(needed, np.ones((4, 30))))
     return len(calls)
 
 
@@ -61,8 +57,7 @@ def test_a_sample_no_drive_needs_does_not_compute_it():
 
 def test_off_xla_cpu_it_is_the_plain_selection(monkeypatch):
     """An accelerator would read the cond's predicate back every step: there the function runs on every sample."""
-    import jaxmodel.seldom as seldom
-    monkeypatch.setattr(seldom.jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert _callbacks_in_a_batch() >= 30
 
 
