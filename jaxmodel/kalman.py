@@ -149,9 +149,10 @@ def init_kalman_state(params):
                        fix_rejected=z, reposition=z, alignment=init_alignment_state())
 
 
-def transition(params, dt, s, course, alpha=0.0):
+def transition(params, dt, s, course, alpha=0.0, turn_sigma=0.0):
     """Phi, Q of one sample: dt (s), s corrected signed distance (m), course the corrected course (rad),
-    alpha the wheel course change of the sample (rad)."""
+    alpha the wheel course change of the sample (rad), turn_sigma (rad) the uncertainty of a turn the odometer's guard
+    substituted (plausibility.py ``dD_sigma`` / track; 0 for counted turns): added to dth2's process noise."""
     tau = params.kf_gm_tau_s
     e1 = jnp.exp(-dt / tau)
     sig_gm2 = deg(params.kf_gm_sigma_deg) ** 2
@@ -174,7 +175,7 @@ def transition(params, dt, s, course, alpha=0.0):
     q11 = sig_gm2 * (1.0 - e1 * e1)
     q_rate = params.kf_rate_psd * jnp.abs(s)  # beta's random walk over the sample's metres
     q22 = (q_ramp * dt ** 3 / 3.0 + q_drift * dt + params.kf_drift_per_m * jnp.abs(s)
-           + (params.kf_turn_sigma * alpha) ** 2 + q_rate * s * s / 3.0)
+           + (params.kf_turn_sigma * alpha) ** 2 + turn_sigma ** 2 + q_rate * s * s / 3.0)
     q28 = q_rate * s / 2.0
     q23 = q_ramp * dt ** 2 / 2.0
     q33 = q_ramp * dt
@@ -407,7 +408,7 @@ def align_after(params, ks, heading, started, realigned, theta, sigma, fix_east,
 def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_heading, compass_ok, e_c,
                 fix_east, fix_north, fix_valid, odometer_ok, initialized, map_heading=0.0, map_used=False,
                 enabled=True, dt_counts=None, held=False, rate_change=0.0, rate_variance=0.0, lost_elsewhere=False,
-                reading_dt=None):
+                reading_dt=None, turn_sigma=0.0):
     """One sample (US 4,680,715 claim 1).  Returns (new KalmanState, corrected course C_th [rad], east [m], north [m]).
 
     dt: sample interval (0 when unusable); distance: signed AD (m) with the calibrated dpp; dt_counts: the time
@@ -420,7 +421,9 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     started (1.0); rate_change: the change of the wheel course's rate per metre by a new left/right calibration
     this sample (rad/m, drift_capture.calibrate), which beta^ follows; rate_variance: the variance beta^ is released to
     (rad^2/m^2); lost_elsewhere: the complementary filter restarted as lost on this sample (see _reacquire);
-    reading_dt: the seconds since the previous compass reading (compass.reading_interval; dt if None).
+    reading_dt: the seconds since the previous compass reading (compass.reading_interval; dt if None);
+    turn_sigma: the uncertainty (rad) of a turn the odometer's guard substituted for a wheel that stopped counting
+    (0 for counted turns), dth2's process noise as in F-DELTA (offset_filter.predict).
     ``enabled`` is static: False (other modes) passes the state through.
     """
     if not enabled:
@@ -431,7 +434,7 @@ def kalman_step(params, ks, *, dt, distance, alpha, wheel_heading, compass_headi
     # 2. DF(V).
     s = params.kf_speed_factor * dist_used
     err_p, cov_p = _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, rate_change,
-                              rate_variance)
+                              rate_variance, turn_sigma)
     # 3. Position computer with the corrected course.
     course_mid = wrap(wheel_heading - 0.5 * alpha - err_p[I_DRIFT])
     north = ks.y + s * jnp.cos(course_mid)
@@ -481,7 +484,8 @@ def _plausible_motion(params, ks, dt, distance, alpha, odometer_ok, dt_counts, h
     return dt, speed, dist_used, jnp.abs(alpha) <= course_limit
 
 
-def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, rate_change, rate_variance):
+def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, rate_change, rate_variance,
+               turn_sigma=0.0):
     """The error state and covariance predicted over the sample (the filter runs only once H_W has been started;
     before, P0): an implausible course change goes into dth2, a new calibration's rate change into beta."""
     err = jnp.where(active, ks.err, 0.0)
@@ -491,7 +495,7 @@ def _predicted(params, ks, active, p0, dt, s, alpha, wheel_heading, course_ok, r
     cov = cov.at[I_RATE, I_RATE].max(jnp.where(active, rate_variance, 0.0))
     course_est = err[I_DRIFT]
     course_mid = wrap(wheel_heading - 0.5 * alpha - course_est)
-    phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0))
+    phi, q = transition(params, dt, s, course_mid, jnp.where(course_ok, alpha, 0.0), turn_sigma)
     err_p, cov_p = predict(err, cov, phi, q)
     return jnp.where(active, err_p, err), jnp.where(active, cov_p, cov)
 

@@ -406,7 +406,7 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman",
         rate_change=rate_change, rate_variance=_kalman.released_rate_variance(params, offset, kalman_before),
-        lost_elsewhere=fd.get("lost_restart", False), reading_dt=odo.get("reading_dt"))
+        lost_elsewhere=fd.get("lost_restart", False), reading_dt=odo.get("reading_dt"), turn_sigma=odo["turn_sigma"])
     if config.mode == "kalman":
         kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.align_after(
             params, kalman_state, kalman_heading, started, realigned, rotation, rotation_sigma,

@@ -158,6 +158,7 @@ class _Substitution(NamedTuple):
     kept: jnp.ndarray     # the sample's motion is used
     single: jnp.ndarray   # pulses were removed from one wheel
     start: jnp.ndarray    # that removal was rounded (jaxmodel/vernier.py estimates it again)
+    cancel: jnp.ndarray   # a returning spike or a stuck wheel's substitution: the pending estimate is void
     blame_left: jnp.ndarray  # the wheel at fault is the left one
     pulses_left: jnp.ndarray
     pulses_right: jnp.ndarray
@@ -193,7 +194,7 @@ def guard(params, gs, d_left, d_right, dt, time_ok, counts_ok, dpp_left, dpp_rig
     s = _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts_ok, dpp_left, dpp_right)
     usable = time_ok & s.kept & ~held  # the samples the rates, the vernier and the window learn from
     d_left, d_right, v, fired = _vernier.vernier(gs.vector[..., _VERNIER:], s.d_left, s.d_right, usable, s.start,
-                                                 s.single, jnp.where(s.blame_left, 1.0, -1.0), dpp_left, dpp_right)
+                                                 s.cancel, jnp.where(s.blame_left, 1.0, -1.0), dpp_left, dpp_right)
     new = _next_guard_state(g, s, c.turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v)
     dD_sigma = _substituted_sigma(d_left, d_right, s.fix, impossible, c_max, track, step_dt)
     return d_left, d_right, s.raw_ok & ~fired, c.speed_ok, s.kept, dD_sigma, new
@@ -248,8 +249,8 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     # Flags read by every field of the state: computed once (packed.computed_once).
     fix = computed_once(counts_ok & ~raw_ok & trusting)
     new_left, new_right = _predicted_motion(c, d_left, d_right, impossible, blame_left, both)
-    exact, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left,
-                                                        dpp_left, dpp_right)
+    exact, returning, pulses_left, pulses_right = _spurious_pulses(g, d_left, d_right, new_left, new_right,
+                                                                   blame_left, dpp_left, dpp_right)
     spurious_left, spurious_right = pulses_left * dpp_left, pulses_right * dpp_right
     new_left = jnp.where(both, new_left, d_left - spurious_left)
     new_right = jnp.where(both, new_right, d_right - spurious_right)
@@ -265,9 +266,12 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
     # A rounded removal (not an exact modulus or returning spike) is estimated again, two-sided, once
     # vernier.VERNIER_SAMPLES samples from it on have been seen; the pulse it missed is taken off then.
     single = fix & ~both
-    # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).
+    # A stuck wheel's run has no step to re-estimate from both sides: no vernier (a pending one is dropped).  A
+    # spike's return voids the estimate its first sample began; a modulus removed leaves its dD right.
     start = computed_once(single & ~exact & ~impossible)
-    return _Substitution(d_left, d_right, raw_ok, fix, kept, single, start, blame_left, pulses_left, pulses_right)
+    cancel = single & (impossible | returning)
+    return _Substitution(d_left, d_right, raw_ok, fix, kept, single, start, cancel, blame_left, pulses_left,
+                         pulses_right)
 
 
 def _blame_left(c, d_left, d_right, impossible, dead_left, one_dead):
@@ -292,16 +296,17 @@ def _predicted_motion(c, d_left, d_right, impossible, blame_left, both):
 
 
 def _spurious_pulses(g, d_left, d_right, new_left, new_right, blame_left, dpp_left, dpp_right):
-    """The whole number of spurious pulses to remove from the wheel at fault (``_snap``).  Returns (exact,
-    pulses_left, pulses_right): whether it was a modulus or a returning spike, and the pulses removed from each wheel
-    (0 from the other)."""
+    """The whole number of spurious pulses to remove from the wheel at fault (``_snap``).  Returns (exact, returning,
+    pulses_left, pulses_right): whether it was a modulus or a returning spike, whether it undid the pulses last
+    removed from that wheel (a spike returning), and the pulses removed from each wheel (0 from the other)."""
     # Remove a whole number of spurious pulses from the wheel at fault, so its own count (and its
     # quantization phase) is kept; a miss by one pulse is what remains of a glitch.
     # Only the wheel at fault has pulses removed: one snap, on its count.
+    removed = jnp.where(blame_left, g.removed_left, g.removed_right)
     pulses, exact = _snap(jnp.where(blame_left, (d_left - new_left) / dpp_left, (d_right - new_right) / dpp_right),
-                          jnp.where(blame_left, g.removed_left, g.removed_right))
+                          removed)
     pulses_left, pulses_right = jnp.where(blame_left, pulses, 0.0), jnp.where(blame_left, 0.0, pulses)
-    return exact, pulses_left, pulses_right
+    return exact, exact & (removed != 0.0) & (pulses == -removed), pulses_left, pulses_right
 
 
 def _next_guard_state(g, s, turn_bad, window, d_left, d_right, step_dt, time_ok, usable, v):

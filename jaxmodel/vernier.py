@@ -14,6 +14,12 @@ width is that of the points' thinnest enclosing strip, at the slope of one of th
 bounded, not Gaussian: least squares of a line and a step over the same samples found the exact burst on 76 of the 99
 bursts of seeds 101-111, the narrowest band on 89 (stop 83, offline).  The pulse is taken off when its band is
 narrower than the uncorrected one by VERNIER_MARGIN pulses.  The samples are taken as evenly spaced (the index k).
+
+One estimate is pending at a time.  A rounded removal while another is pending replaces it, and the one replaced
+waits in a second slot (the shadow): a spike's first sample is a rounded removal too (3000 pulses is no counter
+modulus), and when the spike returns (an exact removal undoing it) its own estimate is cancelled and the burst's
+before it is pending again.  A counter modulus removed (a wrap at another modulus) leaves its sample's dD right and
+cancels nothing.
 """
 
 from __future__ import annotations
@@ -38,9 +44,13 @@ changed within the window (a bend begins), and a step of a pulse cannot be told 
 99 bursts of seeds 101-111 it changes one decision: a removal that was right, at a bend's onset (narrowest band 6
 pulses), which lost a pulse without it (stop 85)."""
 
-FIELDS = ("vernier_wheel", "vernier_after") + tuple(f"vernier_dD_{i:02d}" for i in range(VERNIER_WINDOW))
+FIELDS = (("vernier_wheel", "vernier_after", "vernier_shadow_wheel", "vernier_shadow_after")
+          + tuple(f"vernier_dD_{i:02d}" for i in range(VERNIER_WINDOW)))
 """The guard state's fields the vernier owns, in order: the wheel a removal is pending on (+1 left, -1 right, 0 none),
-the kept samples seen from it on, and the kept dD (m) of the last VERNIER_WINDOW samples, oldest first."""
+the kept samples seen from it on, the same two of the estimate it replaced (the shadow), and the kept dD (m) of the
+last VERNIER_WINDOW samples, oldest first."""
+_RING = 4
+"""Where the ring of kept dD begins in FIELDS."""
 
 _K = np.arange(VERNIER_WINDOW, dtype=float)
 _STEP = (_K >= VERNIER_BEFORE).astype(float)
@@ -90,23 +100,29 @@ def leftover_pulse(widths, step):
     return missed, clear
 
 
-def vernier(fields, d_left, d_right, usable, start, single, wheel, dpp_left, dpp_right):
+def vernier(fields, d_left, d_right, usable, start, cancel, wheel, dpp_left, dpp_right):
     """One sample of the re-estimate.
 
     fields: (..., len(FIELDS)) this module's part of the guard state; d_left, d_right: the sample's kept increments
     (m, after the guard's removal); usable: kept and in order in time; start: this sample made a rounded removal
-    from ``wheel`` (+1 left, -1 right); single: it removed pulses from one wheel (an exact removal, a modulus or a
-    returning spike, cancels a pending estimate); dpp_left, dpp_right: metres per pulse.
+    from ``wheel`` (+1 left, -1 right); cancel: the pending estimate is void (a returning spike undid the removal
+    that began it, or a stuck wheel's turn was substituted: no step to see); dpp_left, dpp_right: metres per pulse.
     Returns (d_left, d_right, the new fields, whether a pulse was taken off).
     """
-    pending_wheel, after = fields[..., 0], fields[..., 1]
-    ring = fields[..., 2:]
+    ring = fields[..., _RING:]
     ring = jnp.where(usable[..., None], jnp.concatenate([ring[..., 1:], (d_left - d_right)[..., None]], axis=-1), ring)
     begun = start & usable
-    pending = computed_once((pending_wheel != 0.0) & usable & ~single)
+    # A cancelled estimate gives way to the one it had replaced (the shadow), counted on from this sample.
+    shadow_wheel, shadow_after = fields[..., 2], fields[..., 3]
+    restored = cancel & (shadow_wheel != 0.0)
+    ring = _bridged(ring, restored, fields[..., 1])
+    pending_wheel = jnp.where(cancel, jnp.where(restored, shadow_wheel, 0.0), fields[..., 0])
+    after = jnp.where(cancel, jnp.where(restored, shadow_after, 0.0), fields[..., 1])
+    pending = computed_once((pending_wheel != 0.0) & usable)
     wheel_now = jnp.where(begun, wheel, pending_wheel)
-    after = jnp.where(begun, 1.0, jnp.where(pending, after + 1.0, after))
-    due = computed_once(pending & (after >= VERNIER_SAMPLES))
+    counted = jnp.where(pending, after + 1.0, after)
+    after = jnp.where(begun, 1.0, counted)
+    due = computed_once(pending & ~begun & (after >= VERNIER_SAMPLES))
     left = wheel_now > 0.0
     # A value read by every element of the bands: computed once (packed.value_once).
     step = value_once(jnp.where(left, dpp_left, -dpp_right))  # one pulse of the wheel at fault in dD
@@ -118,8 +134,36 @@ def vernier(fields, d_left, d_right, usable, start, single, wheel, dpp_left, dpp
     d_left = d_left - jnp.where(left, taken * dpp_left, 0.0)
     d_right = d_right - jnp.where(left, 0.0, taken * dpp_right)
     ring = jnp.concatenate([ring[..., :-1], ring[..., -1:] - (taken * step)[..., None]], axis=-1)
-    # Done when due, or when an exact removal cancels it (or a rounded one replaces it: ``begun``).
-    done = due | (single & ~start)
-    wheel_kept = jnp.where(done, 0.0, wheel_now)
-    after = jnp.where(done, 0.0, after)
-    return d_left, d_right, jnp.concatenate([wheel_kept[..., None], after[..., None], ring], axis=-1), fired
+    wheel_kept = jnp.where(due, 0.0, wheel_now)
+    after = jnp.where(due, 0.0, after)
+    shadow_wheel, shadow_after = _next_shadow(shadow_wheel, shadow_after, restored, begun, pending_wheel, counted,
+                                              usable, due)
+    return d_left, d_right, jnp.concatenate(
+        [wheel_kept[..., None], after[..., None], shadow_wheel[..., None], shadow_after[..., None], ring],
+        axis=-1), fired
+
+
+def _bridged(ring, restored, cancelled_after):
+    """The ring with the samples of a returned spike bridged: from the spike's first sample (``cancelled_after``
+    samples before this one, its estimate's count) to its return, the kept dD all take their mean.
+
+    The spike's rounded removal can miss by a pulse, and its return undoes exactly what was removed: D is right
+    again from the return on, but off by that pulse in between, which would widen every band of the burst's
+    estimate.  Bridged, D runs on the chord between two of its points, inside every band that holds them: the
+    widths are those of the window without the spike's samples."""
+    span = jnp.where(restored, cancelled_after + 1.0, 0.0)  # the spike's samples and its return
+    inside = _lifted(_K, ring.ndim - 1) >= VERNIER_WINDOW - span[..., None]
+    mean = jnp.sum(jnp.where(inside, ring, 0.0), axis=-1) / jnp.maximum(span, 1.0)
+    return jnp.where(inside, mean[..., None], ring)
+
+
+def _next_shadow(shadow_wheel, shadow_after, restored, begun, pending_wheel, counted, usable, due):
+    """The shadow slot after the sample.  A rounded removal's estimate replaces a pending one, which moves here with
+    this sample counted; a shadow counts every usable sample (its window moves on with the ring) and is dropped once
+    restored, once the estimate that replaced it is due (that window holds a second removal) and once its own
+    window has passed (a restored shadow is due on VERNIER_SAMPLES at the latest)."""
+    shadow_after = jnp.where((shadow_wheel != 0.0) & usable, shadow_after + 1.0, shadow_after)
+    gone = restored | due | (shadow_after >= VERNIER_SAMPLES)
+    replaced = begun & (pending_wheel != 0.0)
+    return (jnp.where(replaced, pending_wheel, jnp.where(gone, 0.0, shadow_wheel)),
+            jnp.where(replaced, counted, jnp.where(gone, 0.0, shadow_after)))

@@ -1,7 +1,11 @@
-"""The Kalman mode (US 4,680,715) outside its tuning: a tyre mismatch the parameters do not know, a drive started in
-a garage, and a reliability output of its own (jaxmodel/kalman.py: beta, _reacquire, bound)."""
+"""The Kalman mode (US 4,680,715) outside its tuning: a tyre mismatch the parameters do not know, a wheel sensor that
+stops counting, a drive started in a garage, and a reliability output of its own (jaxmodel/kalman.py: beta,
+_reacquire, bound)."""
 
+import copy
 import dataclasses
+import sys
+from pathlib import Path
 import math
 
 import jax
@@ -14,6 +18,9 @@ from identification import scenarios as sc
 from jaxmodel import kalman as K
 from jaxmodel.heading_filter import reliability as reliability_of_bound
 from matrix_drives import heading_error_deg, rmse_after_first_minute, run_drive
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import bench_outside_matrix as outside_matrix  # noqa: E402
 
 
 def _steps(p, n, compass_heading, e_c, speed=10.0, dt=0.1):
@@ -64,6 +71,31 @@ def test_kalman_mode_follows_a_tyre_mismatch_the_parameters_do_not_know(scenario
     no_fixes = dataclasses.replace(drive, columns={k: v for k, v in drive.columns.items() if not k.startswith("fix")})
     rmse = rmse_after_first_minute(run_drive(no_fixes, mode="kalman"), no_fixes)
     assert rmse < 4.0, rmse
+
+
+def test_a_substituted_turn_s_uncertainty_is_course_noise():
+    """The guard's ``dD_sigma`` / track of a turn it substituted for a wheel that stopped counting enters dth2's
+    process noise as its square, as in F-DELTA (offset_filter.predict): 0.01 rad adds 1e-4 rad^2 and nothing else."""
+    p = jm.make_params()
+    _, q0 = K.transition(p, 0.1, 1.0, 0.3, alpha=0.002)
+    _, q1 = K.transition(p, 0.1, 1.0, 0.3, alpha=0.002, turn_sigma=0.01)
+    expected = np.zeros((K.N_STATES, K.N_STATES))
+    expected[K.I_DRIFT, K.I_DRIFT] = 1e-4
+    np.testing.assert_allclose(np.asarray(q1 - q0), expected, atol=1e-15)
+
+
+@pytest.mark.slow
+def test_kalman_mode_hands_the_course_to_the_compass_while_a_wheel_is_stuck():
+    """The left sensor stuck for 5 s at 40 % of mixed/baseline/107 (300 s, bench_outside_matrix's stuck_wheel; no
+    fixes): the guard substitutes the other wheel's travel and says the turn is unknown.  Until stop 88 the Kalman
+    mode ignored that, kept the turns missed during the fault and was 29.8 deg off (RMSE after the first minute);
+    with the substituted turn's variance as course noise, 0.81 deg (the clean drive: 0.42 deg)."""
+    drive = sc.make_drive("mixed", "baseline", 107, duration_s=300.0)
+    stuck = copy.deepcopy(drive)
+    outside_matrix._stuck_wheel(stuck)
+    no_fixes = {k: v for k, v in stuck.columns.items() if not k.startswith("fix")}
+    stuck = dataclasses.replace(stuck, columns=no_fixes)
+    assert rmse_after_first_minute(run_drive(stuck, mode="kalman"), stuck) < 1.5
 
 
 @pytest.mark.slow

@@ -72,13 +72,17 @@ def _straight_road(dpp, n=40):
     return np.diff(np.floor(0.3 + 1.5 * k)) * dpp, np.diff(np.floor(0.8 + 1.5 * k)) * dpp
 
 
-def _stream(d_left, d_right, start_at, wheel, dpp):
+def _stream(d_left, d_right, start_at, wheel, dpp, cancel_at=()):
+    """The vernier over per-sample kept increments (m), rounded removals from ``wheel`` on the samples ``start_at``
+    (one index or several), cancelling ones (a returning spike) on ``cancel_at``."""
+    starts = {start_at} if np.isscalar(start_at) else set(start_at)
     fields = jnp.zeros((len(vn.FIELDS),))
     out = []
     for i, (dl, dr) in enumerate(zip(d_left, d_right)):
-        start = jnp.asarray(i == start_at)
+        start = jnp.asarray(i in starts)
         dl2, dr2, fields, fired = vn.vernier(fields, jnp.asarray(dl), jnp.asarray(dr), jnp.asarray(True), start,
-                                             start, jnp.asarray(float(wheel)), jnp.asarray(dpp), jnp.asarray(dpp))
+                                             jnp.asarray(i in cancel_at), jnp.asarray(float(wheel)),
+                                             jnp.asarray(dpp), jnp.asarray(dpp))
         out.append((float(dl2), float(dr2), bool(fired)))
     return out, fields
 
@@ -100,6 +104,27 @@ def test_a_pulse_left_over_is_taken_off_the_wheel_at_fault_once_the_window_is_se
     assert fired == [20 + vn.VERNIER_SAMPLES - 1]
     assert sum(o[0] - o[1] for o in out) == pytest.approx(clean_dD, abs=1e-12)
     assert float(fields[0]) == 0.0  # nothing pending any more
+
+
+@pytest.mark.parametrize("spike_at, spike_miss", [(21, 0), (24, 0), (26, 0), (22, -1), (25, 1), (26, -1), (21, 2)])
+def test_a_spike_within_a_burst_s_window_does_not_void_the_burst_s_estimate(spike_at, spike_miss):
+    """A burst at sample 20 left one pulse on the left wheel; a spike on the same wheel follows within
+    VERNIER_SAMPLES samples (its first sample a rounded removal, ``spike_miss`` pulses off) and returns on the next
+    sample (an exact removal that undoes the first and voids the spike's own estimate).  Until stop 88 the spike's
+    estimate replaced the burst's and its return cancelled it: the pulse stayed.  The burst's estimate waits in the
+    shadow slot and is pending again once the spike has returned, the spike's two samples bridged (a pulse missed
+    there would widen the bands by a pulse; unbridged, the last four cases kept the pulse): the pulse comes off on the
+    burst's own due sample."""
+    dpp = 0.02
+    d_left, d_right = _straight_road(dpp)
+    clean_dD = np.sum(d_left - d_right)
+    d_left[20] += dpp
+    d_left[spike_at] += spike_miss * dpp
+    d_left[spike_at + 1] -= spike_miss * dpp
+    out, fields = _stream(d_left, d_right, (20, spike_at), 1, dpp, cancel_at=(spike_at + 1,))
+    assert [i for i, o in enumerate(out) if o[2]] == [20 + vn.VERNIER_SAMPLES - 1]
+    assert sum(o[0] - o[1] for o in out) == pytest.approx(clean_dD, abs=1e-12)
+    assert not np.any(np.asarray(fields[:vn._RING]))  # nothing pending, nothing in the shadow
 
 
 def test_no_pulse_is_taken_off_when_the_removal_was_right():
