@@ -15,7 +15,8 @@ returns one line per problem, each naming the drive:
   they wrap there), or counters that fall back by more than half their range (a wrap) while never
   coming near the modulus (they wrap elsewhere), with the time of the first;
 * **a counter that stopped counting** while the other counted on, for a second or more, with the times;
-* **odometer samples dropped** by the plausibility checks (``odometer_valid`` = 0), with their times;
+* **odometer samples that failed** the plausibility checks (``odometer_valid`` = 0), with their times, and whether
+  their motion was replaced by the guard's prediction (finite counts) or dropped (next to non-finite counts);
 * **time not in seconds**: a median time step of ``SLOW_STEP_S`` or more (milliseconds read as seconds make
   every speed 1000 x too small, and the speed gates of the refinement never open).
 
@@ -243,14 +244,20 @@ def _stopped_counter_warnings(name, drive, params) -> list[str]:
     return out
 
 
-def _odometer_warnings(name, cols) -> list[str]:
+def _odometer_warnings(name, drive, cols) -> list[str]:
     odo = np.asarray(cols["odometer_valid"])
     bad = np.flatnonzero(odo[1:] == 0) + 1  # the first sample only sets the counter references
     if not bad.size:
         return []
     t = np.asarray(cols["time_s"], dtype=np.float64)[bad]
-    return [f"{name}: {bad.size} odometer samples dropped by the plausibility checks (implausible or non-finite "
-            f"counts) at {_times(t)}"]
+    # The robust estimator's guard (jaxmodel/plausibility.py) replaces the motion of a sample whose finite counts
+    # failed a check by its prediction (a spike, a wrap at another modulus); counts that are not numbers carry none.
+    counts = [np.asarray(getattr(drive.inputs, f"{side}_pulses"), dtype=np.float64)[bad] for side in ("left", "right")]
+    non_finite = int(np.sum(~(np.isfinite(counts[0]) & np.isfinite(counts[1]))))
+    what = "the guard replaced their motion by its prediction where the counts were finite" + (
+        f" ({non_finite} were not)" if non_finite else "")
+    return [f"{name}: {bad.size} odometer samples failed the plausibility checks (implausible or non-finite "
+            f"counts) at {_times(t)}: {what}"]
 
 
 def _time_warnings(name, drive) -> list[str]:
@@ -269,7 +276,7 @@ def drive_warnings(drive, params, cols: Mapping[str, np.ndarray], mode="compleme
     name = drive.path
     return (_time_warnings(name, drive) + _compass_warnings(name, drive, params, cols, mode)
             + _counter_warnings(name, drive, params)
-            + _stopped_counter_warnings(name, drive, params) + _odometer_warnings(name, cols))
+            + _stopped_counter_warnings(name, drive, params) + _odometer_warnings(name, drive, cols))
 
 
 def batch_warnings(drives, params, config=None) -> list[str]:

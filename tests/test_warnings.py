@@ -1,6 +1,6 @@
 """Issue 11: warnings where the result is probably wrong, on stderr (estimate) and in the identify
 report: no usable compass, an uncalibrated compass, a counter_modulus that does not match the
-counters, a counter that stopped counting, odometer samples dropped by the plausibility checks (with their
+counters, a counter that stopped counting, odometer samples that failed the plausibility checks (with their
 times); identify keeps a finished fit when a plot fails."""
 
 import json
@@ -102,14 +102,15 @@ def test_counter_modulus_mismatch_and_dropped_odometer_samples(base, tmp_path, c
     wrapped = dict(cols, left_pulses=np.mod(cols["left_pulses"], 4096), right_pulses=np.mod(cols["right_pulses"], 4096))
     warnings, _ = _warnings(wrapped, params, tmp_path, capsys)
     assert any("counter_modulus 65536 does not match" in w and "wrap near" in w for w in warnings), warnings
-    # one counter sample of 1e15: beyond the modulus, and dropped by the plausibility checks at its time
+    # one counter sample of 1e15: beyond the modulus, failing the plausibility checks at its time (substituted)
     spike = dict(cols, left_pulses=np.asarray(cols["left_pulses"], dtype=np.int64).copy())
     spike["left_pulses"][500] = 10**15
     warnings, _ = _warnings(spike, params, tmp_path, capsys)
     text = "\n".join(warnings)
     assert "reaches 1000000000000000" in text, text
     t500 = f"{cols['time_s'][500]:.1f}"
-    assert any("odometer samples dropped by the plausibility checks" in w and t500 in w for w in warnings), text
+    assert any("odometer samples failed the plausibility checks" in w and t500 in w and "replaced their motion" in w
+               for w in warnings), text
 
 
 def test_a_wheel_that_stops_counting_is_warned_about_with_its_times(base, tmp_path, capsys):
