@@ -42,8 +42,11 @@ seeds only.  pulse_chatter and burst_over_5 (stop 64) chose the form of jaxmodel
 judge on other seeds only.
 
 ``--axle rear`` draws the same vehicles with their wheel sensors on the rear axle (no Ackerman geometry; stop 32).
+``--kalman`` prints the Kalman mode (no fixes) too, beside the ratio and not in it (stop 88: its stuck_wheel and
+wheel_slip rows, docs/tuning.md).
 
     .venv/bin/python bench/bench_outside_matrix.py [--seeds 101,104] [--duration 900] [--only NAME,...] [--axle rear]
+                                                   [--kalman]
 """
 
 import argparse
@@ -234,7 +237,9 @@ def main():
     ap.add_argument("--duration", type=float, default=900.0)
     ap.add_argument("--only", help="comma-separated disturbances to run (default: all)")
     ap.add_argument("--axle", choices=("front", "rear"), default="front", help="the vehicles' wheel sensor axle")
+    ap.add_argument("--kalman", action="store_true", help="also the Kalman mode (no fixes), not in the ratio")
     args = ap.parse_args()
+    modes = MODES + (("kalman",) if args.kalman else ())
     chosen = DISTURBANCES if not args.only else {k: DISTURBANCES[k] for k in args.only.split(",")}
     seeds = [int(s) for s in args.seeds.split(",")]
     t0 = time.perf_counter()
@@ -243,7 +248,7 @@ def main():
     print(f"baseline drives of seeds {seeds} ({len(base)} drives, {args.duration:g} s, {args.axle}-axle wheel "
           f"sensors), heading RMSE after the "
           f"first minute (deg); ratio = default / min(odometer, compass)\n")
-    print(f"| disturbance | drive | {' | '.join(MODES)} | ratio |\n|---|---|{'---|' * len(MODES)}---|")
+    print(f"| disturbance | drive | {' | '.join(modes)} | ratio |\n|---|---|{'---|' * len(modes)}---|")
     for name, disturb in chosen.items():
         drives = []
         for drive in base:
@@ -251,12 +256,13 @@ def main():
             disturb(changed)
             drives.append(changed)
         ratios = []
-        for row in ev.evaluate(drives, modes=MODES):
+        for row in ev.evaluate(drives, modes=modes):
             r = row["rmse"]
             ratios.append(row["ratio"])
             print(f"| {name} | {row['name'].replace('/baseline', '')} | "
-                  f"{' | '.join(f'{r[m]:.2f}' for m in MODES)} | {ratios[-1]:.2f} |", flush=True)
-        print(f"| {name} | geometric mean ratio | | | | {np.exp(np.mean(np.log(ratios))):.2f} |", flush=True)
+                  f"{' | '.join(f'{r[m]:.2f}' for m in modes)} | {ratios[-1]:.2f} |", flush=True)
+        print(f"| {name} | geometric mean ratio | {'| ' * len(modes)}{np.exp(np.mean(np.log(ratios))):.2f} |",
+              flush=True)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 

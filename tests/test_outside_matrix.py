@@ -86,6 +86,21 @@ def test_the_bench_draws_rear_axle_vehicles_when_asked(monkeypatch, capsys):
     assert "rear-axle wheel sensors" in capsys.readouterr().out
 
 
+def test_the_bench_prints_the_kalman_mode_beside_the_ratio_when_asked(monkeypatch, capsys):
+    """--kalman: a fourth column, the Kalman mode (no fixes), in every row; the ratio stays the default's."""
+    monkeypatch.setattr(sys, "argv", ["bench_outside_matrix.py", "--seeds", "101", "--duration", "60", "--kalman",
+                                      "--only", "none"])
+    asked = []
+    monkeypatch.setattr(bench.ev, "evaluate", lambda drives, modes: asked.append(modes) or [
+        dict(name=d.name, rmse={m: 1.0 + i for i, m in enumerate(modes)}, ratio=0.5) for d in drives])
+    bench.main()
+    out = capsys.readouterr().out
+    assert asked == [bench.MODES + ("kalman",)]
+    assert "| default | odometer | compass | kalman | ratio |" in out
+    assert out.count("| 1.00 | 2.00 | 3.00 | 4.00 | 0.50 |") == len(sc.SCENARIOS)
+    assert "| none | geometric mean ratio | | | | | 0.50 |" in out
+
+
 def test_a_slower_log_keeps_every_nth_sample_of_log_and_truth(drive):
     changed = _disturbed(drive, "log_2hz")
     for table, before, keys in ((changed.columns, drive.columns, ("time_s", "left_pulses", "compass_x")),
