@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from identification import scenarios as sc  # noqa: E402
+from identification.drive_log import wrap_rad  # noqa: E402
 from matrix_drives import run_drive  # noqa: E402
 
 BURST_PULSES = 20
@@ -59,10 +60,19 @@ def _bench(scenario, seed, bursts, rng_seed):
     rows = []
     for at in picks:
         ends = [_end_heading(_glitched(base, at, s)) for s in (None, *SPIKE_AFTER)]
-        rows.append(np.degrees(np.angle(np.exp(1j * (np.asarray(ends) - clean)))))
+        rows.append(np.degrees(wrap_rad(np.asarray(ends) - clean)))
         print(f"{scenario}/{seed} burst at {at}: alone {rows[-1][0]:+.3f}, "
               + ", ".join(f"spike +{s} {v:+.3f}" for s, v in zip(SPIKE_AFTER, rows[-1][1:])), flush=True)
     return np.asarray(rows)
+
+
+def _summary(label, rows):
+    """How often the spike changed the outcome by more than 0.1 deg, and how often a drive ended more than 0.1 deg
+    off, alone and with a spike.  rows: (bursts, 1 + len(SPIKE_AFTER)) of ``_bench``."""
+    changed = np.abs(rows[:, 1:] - rows[:, :1]) > 0.1
+    print(f"{label}: the spike changed the outcome in {changed.sum()} of {changed.size}; ended > 0.1 deg off: "
+          f"alone {np.sum(np.abs(rows[:, 0]) > 0.1)} of {len(rows)}, with a spike "
+          f"{np.sum(np.abs(rows[:, 1:]) > 0.1)} of {changed.size}", flush=True)
 
 
 def main():
@@ -74,17 +84,9 @@ def main():
     total = []
     for item in args.drives:
         scenario, seed = item.split(":")
-        rows = _bench(scenario, int(seed), args.bursts, args.rng)
-        changed = np.abs(rows[:, 1:] - rows[:, :1]) > 0.1
-        print(f"{item}: the spike changed the outcome in {changed.sum()} of {changed.size}; ended > 0.1 deg off: "
-              f"alone {np.sum(np.abs(rows[:, 0]) > 0.1)} of {len(rows)}, with a spike "
-              f"{np.sum(np.abs(rows[:, 1:]) > 0.1)} of {changed.size}", flush=True)
-        total.append(rows)
-    rows = np.concatenate(total)
-    changed = np.abs(rows[:, 1:] - rows[:, :1]) > 0.1
-    print(f"all: the spike changed the outcome in {changed.sum()} of {changed.size}; ended > 0.1 deg off: alone "
-          f"{np.sum(np.abs(rows[:, 0]) > 0.1)} of {len(rows)}, with a spike {np.sum(np.abs(rows[:, 1:]) > 0.1)} of "
-          f"{changed.size}")
+        total.append(_bench(scenario, int(seed), args.bursts, args.rng))
+        _summary(item, total[-1])
+    _summary("all", np.concatenate(total))
 
 
 if __name__ == "__main__":

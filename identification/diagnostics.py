@@ -15,8 +15,8 @@ returns one line per problem, each naming the drive:
   they wrap there), or counters that fall back by more than half their range (a wrap) while never
   coming near the modulus (they wrap elsewhere), with the time of the first;
 * **a counter that stopped counting** while the other counted on, for a second or more, with the times;
-* **odometer samples that failed** the plausibility checks (``odometer_valid`` = 0), with their times, and whether
-  their motion was replaced by the guard's prediction (finite counts) or dropped (next to non-finite counts);
+* **odometer samples that failed** the plausibility checks (``odometer_valid`` = 0), with their times: the guard
+  replaced their motion by its prediction where their counts were finite (how many were not, if any);
 * **time not in seconds**: a median time step of ``SLOW_STEP_S`` or more (milliseconds read as seconds make
   every speed 1000 x too small, and the speed gates of the refinement never open).
 

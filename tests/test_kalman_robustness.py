@@ -4,9 +4,9 @@ _reacquire, bound)."""
 
 import copy
 import dataclasses
+import math
 import sys
 from pathlib import Path
-import math
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +21,11 @@ from matrix_drives import heading_error_deg, rmse_after_first_minute, run_drive
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import bench_outside_matrix as outside_matrix  # noqa: E402
+
+
+def _without_fixes(drive):
+    """The drive with its fix columns removed (the Kalman mode without fixes)."""
+    return dataclasses.replace(drive, columns={k: v for k, v in drive.columns.items() if not k.startswith("fix")})
 
 
 def _steps(p, n, compass_heading, e_c, speed=10.0, dt=0.1):
@@ -68,7 +73,7 @@ def test_kalman_mode_follows_a_tyre_mismatch_the_parameters_do_not_know(scenario
     drive = sc.make_drive(scenario, condition, seed)
     rmse = rmse_after_first_minute(run_drive(drive, mode="kalman"), drive)
     assert rmse < 1.5, rmse
-    no_fixes = dataclasses.replace(drive, columns={k: v for k, v in drive.columns.items() if not k.startswith("fix")})
+    no_fixes = _without_fixes(drive)
     rmse = rmse_after_first_minute(run_drive(no_fixes, mode="kalman"), no_fixes)
     assert rmse < 4.0, rmse
 
@@ -93,8 +98,7 @@ def test_kalman_mode_hands_the_course_to_the_compass_while_a_wheel_is_stuck():
     drive = sc.make_drive("mixed", "baseline", 107, duration_s=300.0)
     stuck = copy.deepcopy(drive)
     outside_matrix._stuck_wheel(stuck)
-    no_fixes = {k: v for k, v in stuck.columns.items() if not k.startswith("fix")}
-    stuck = dataclasses.replace(stuck, columns=no_fixes)
+    stuck = _without_fixes(stuck)
     assert rmse_after_first_minute(run_drive(stuck, mode="kalman"), stuck) < 1.5
 
 
