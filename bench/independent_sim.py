@@ -221,7 +221,11 @@ def sensor_axes(veh, Bb):
 
 
 # ----------------------------------------------------------------------------- the drive
-def simulate(kind, seed, duration=900.0, disable=()):
+def simulate(kind, seed, duration=900.0, disable=(), vehicle_seed=None):
+    """One drive of ``kind``: its route, road, magnetics and noise drawn from ``seed``, its vehicle from ``seed`` too
+    or, given ``vehicle_seed``, from that alone (several drives of one vehicle, as a calibration engineer logs them;
+    the drive's own vehicle is still drawn and discarded, so its other streams stay those of ``seed``).
+    Returns (log, truth, params, meta)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}")
     off = set(disable)
@@ -231,6 +235,8 @@ def simulate(kind, seed, duration=900.0, disable=()):
     streams = [np.random.default_rng([seed, KINDS.index(kind), 20240611, i]) for i in range(6)]
     rng_veh, rng, rng_grade, rng_mag, rng_noise, rng_cal = streams
     veh = draw_vehicle(rng_veh, off)
+    if vehicle_seed is not None:
+        veh = draw_vehicle(np.random.default_rng([vehicle_seed, 20240611, 99]), off)
     vtop = {"urban": 55, "urban_hilly": 55, "mixed": 95, "highway": 135}[kind] * KMH
     total_len = 1.2 * vtop * duration + 3000.0
     if kind in ("urban", "urban_hilly"):
@@ -373,7 +379,7 @@ def simulate(kind, seed, duration=900.0, disable=()):
         "rotation_deg": round(veh.mount_rot_deg, 6),
         "field_magnitude": round(float(fm), 6),
     }
-    meta = {"kind": kind, "seed": seed, "duration_s": duration, "disabled": sorted(off),
+    meta = {"kind": kind, "seed": seed, "vehicle_seed": vehicle_seed, "duration_s": duration, "disabled": sorted(off),
             "vehicle": asdict(veh), "distance_m": float(s[-1]),
             "n_stops": len([x for x in route.stops if x[0] <= s[-1]]),
             "max_grade": float(np.max(np.abs(gr))), **anom_info}
@@ -391,13 +397,15 @@ def _write_csv(path, cols, fmts):
     os.replace(path + ".tmp", path)
 
 
-def make_drive(kind, seed, out_dir, *, duration=900.0, clean=False, disable=()):
+def make_drive(kind, seed, out_dir, *, duration=900.0, clean=False, disable=(), vehicle_seed=None):
     """Simulate one drive; writes DRIVE.csv, its parameter JSON, a truth CSV and a meta JSON.
+    ``vehicle_seed``: the vehicle drawn from it (``simulate``), the files tagged ``_v<vehicle_seed>``.
     Returns (csv_path, params_json_path)."""
     off = set(disable) | (set(CLEAN_OFF) if clean else set())
-    log, truth, params, meta = simulate(kind, seed, duration, off)
+    log, truth, params, meta = simulate(kind, seed, duration, off, vehicle_seed)
     os.makedirs(out_dir, exist_ok=True)
-    tag = f"indep_{kind}_s{seed}" + ("_clean" if clean else "") + \
+    tag = f"indep_{kind}_s{seed}" + ("" if vehicle_seed is None else f"_v{vehicle_seed}") + \
+        ("_clean" if clean else "") + \
         ("" if not disable else "_no-" + "-".join(sorted(set(disable))))
     csv_path = os.path.join(out_dir, tag + ".csv")
     par_path = os.path.join(out_dir, tag + ".params.json")
