@@ -98,9 +98,12 @@ def calibrate(params, calibration, config, odo, h_c, compass_ok, offset, steady,
     steady F-DELTA after this sample's update.  Returns (calibration state, offset, steady, the change of the wheel
     heading's rate per metre [rad/m], for the Kalman mode's beta)."""
     robust = config.robust
+    # Only counts as they were measure the tyres: a burst the guard removed by rounding can miss by a pulse, and one
+    # pulse in a stretch moved the ratio by 42 ppm, the odometer heading 2.9 deg over the next 4 minutes (independent
+    # simulator, urban_hilly s61; docs/tuning.md, stop 89).  A stretch with a substituted sample is discarded.
     cal_state = _cal.calibration_step(
         params, calibration, pulses_left=odo["n_left"], pulses_right=odo["n_right"], d_t=odo["d_t"],
-        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["plausible"], enabled=config.calibration,
+        compass_heading=h_c, compass_ok=compass_ok, odometer_ok=odo["counted"], enabled=config.calibration,
         robust=robust)
     if _fdelta.captures_drift(config):
         # A completed stretch measures the drift the ratio in force leaves, independently of the compass.

@@ -51,7 +51,7 @@ def odometer(params, state, sample, track_table, robust=False):
     dt = jnp.where(time_ok, dt_raw, 0.0)
     counts = _decoded_counts(params, state, sample, started, time_ok, dt, robust)
     dpp = counts["dpp"]
-    d_left, d_right, n_left, n_right, plausible, kept, dD_sigma, guard_state = _plausible_distances(
+    d_left, d_right, n_left, n_right, plausible, counted, kept, dD_sigma, guard_state = _plausible_distances(
         params, state, counts, started, time_ok, dt, robust)
     if robust:
         # The guard's distances and the sample's interval are read by most of the step: computed once.
@@ -80,7 +80,7 @@ def odometer(params, state, sample, track_table, robust=False):
     return dict(dt=dt, dt_counts=counts["dt_counts"], held=counts["held"], last_count_time=counts["last_count_time"],
                 time_ok=time_ok, left=counts["left"], right=counts["right"], n_left=n_left, n_right=n_right, dD=dD,
                 AD=AD, d_t=d_t, speed=speed, window_dD=window_dD, window_AD=window_AD, curvature=curvature,
-                interval=interval, track=track, alpha=alpha, dpp=dpp, plausible=plausible, kept=kept,
+                interval=interval, track=track, alpha=alpha, dpp=dpp, plausible=plausible, counted=counted, kept=kept,
                 guard=guard_state, turn_rate=guard_state.rate_dD / track, turn_sigma=dD_sigma / track)
 
 
@@ -126,8 +126,9 @@ def _decoded_counts(params, state, sample, started, time_ok, dt, robust):
 def _plausible_distances(params, state, counts, started, time_ok, dt, robust):
     """The wheels' distances (m) and pulse increments after the plausibility checks (speed and course,
     jaxmodel/plausibility.py; the seed filter: max_speed alone).  Returns (d_left, d_right, n_left, n_right,
-    plausible: no counter fault, kept: the sample's motion used, dD_sigma (m): the uncertainty of a substituted
-    wheel, the guard's state)."""
+    plausible: no counter fault, counted: the increments are the counts as they were (plausible, and nothing
+    substituted or removed, nor a removal corrected by the vernier), kept: the sample's motion used, dD_sigma (m):
+    the uncertainty of a substituted wheel, the guard's state)."""
     dpp_left, dpp_right = state.calibration.dpp_left, state.calibration.dpp_right
     n_left, n_right, counts_finite = counts["n_left"], counts["n_right"], counts["counts_finite"]
     if robust:
@@ -140,7 +141,7 @@ def _plausible_distances(params, state, counts, started, time_ok, dt, robust):
         # odometer_valid reports counter faults (a wheel beyond max_speed, non-finite counts), as
         # without the guard; a burst within max_speed is substituted (its motion kept) and not a fault.
         # (A wheel that stopped counting is substituted too; estimate warns of it from the log itself.)
-        return d_left, d_right, n_left, n_right, speed_ok, kept, dD_sigma, guard_state
+        return d_left, d_right, n_left, n_right, speed_ok, raw_ok, kept, dD_sigma, guard_state
     # A jump beyond max_speed (over the sample interval, 0.1 s if the time step is unusable)
     # is a counter fault; the sample's distance is dropped and the counters resync.
     d_left, d_right = n_left * dpp_left, n_right * dpp_right
@@ -150,7 +151,7 @@ def _plausible_distances(params, state, counts, started, time_ok, dt, robust):
     d_right = jnp.where(plausible, d_right, 0.0)
     n_left = jnp.where(plausible, n_left, 0.0)
     n_right = jnp.where(plausible, n_right, 0.0)
-    return d_left, d_right, n_left, n_right, plausible, plausible, jnp.zeros_like(d_left), state.guard
+    return d_left, d_right, n_left, n_right, plausible, plausible, plausible, jnp.zeros_like(d_left), state.guard
 
 
 def _interval_turn(params, state, dD, signed_dD, d_t, speed, dpp, track_table, robust):
