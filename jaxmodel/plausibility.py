@@ -232,7 +232,18 @@ def _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track):
     dead_left = (d_left == 0.0) & (d_right != 0.0)
     one_dead = dead_left | ((d_right == 0.0) & (d_left != 0.0))
     dead_at_speed = one_dead & ((jnp.abs(c.dD) - 3.0 * dpp) * ad > MAX_LATERAL_ACCEL * track * moved_dt * moved_dt)
-    impossible = computed_once(c.speed_ok & (dead_at_speed | ((params.sensor_axle > 0.5) & (
+    # A wheel that counts more than its own recent rate, where it departs from its rate more than the other (the wheel
+    # at fault), while both count, after a sample that was not substituted, is a burst of spurious pulses however
+    # large: removed as a burst (the vernier estimates it again), not replaced as a wheel that stopped counting, whose
+    # turn is a guess of up to c_max |AD| (dD_sigma).  At 4 m/s 29 pulses of 2 cm passed for a stuck wheel: a pulse
+    # off and no vernier, and the default mode, told the turn was unknown to 3.4 deg, followed a compass 3 deg off
+    # (independent simulator, mixed s60; docs/tuning.md, stop 89).  A wheel that over-counts sample after sample (a
+    # chattering sensor) stays impossible from its second sample on: substituted however long it lasts.
+    left_at_fault = jnp.abs(d_left - c.pred_left) >= jnp.abs(d_right - c.pred_right)
+    over_counts = jnp.where(left_at_fault, jnp.abs(d_left) > jnp.abs(c.pred_left),
+                            jnp.abs(d_right) > jnp.abs(c.pred_right))
+    burst = ~one_dead & over_counts & (g.substituted < 0.5)
+    impossible = computed_once(c.speed_ok & ~burst & (dead_at_speed | ((params.sensor_axle > 0.5) & (
         (jnp.abs(window_dD) > c_impossible * window_AD + 4.0 * dpp)
         | (jnp.abs(c.dD) > c_impossible * ad + 3.0 * dpp)))))
     return (window_dD, window_AD), impossible, dead_left, one_dead

@@ -60,6 +60,7 @@ def test_a_corroborated_drift_restarts_the_steady_filters_hold_and_the_rate_filt
     rate = _rate_filter(params, 80e-6, 15e-6)
     steady = of.OffsetState.pack(of.init_offset_state(of.steady_params(params)).fields())
     odo = dict(n_left=jnp.asarray(0.0), n_right=jnp.asarray(0.0), d_t=jnp.asarray(0.0), plausible=jnp.asarray(True),
+               counted=jnp.asarray(True),
                track=jnp.asarray(TRACK))
     for agree, since in ((True, 0.0), (False, of.NEVER_DRIFTED_M)):
         cs = calib if agree else _stretches(params, -1.6e-4, 8e-5)
