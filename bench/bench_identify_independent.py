@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -102,7 +101,7 @@ def one_vehicle(v, train_kinds, held_kinds, duration, work):
         fitted = json.load(f)
     report = fitted.pop("report")
     axle_t = "T_F" if true["sensor_axle"] == "front" else "T_R"
-    print(f"vehicle {v}: {true['sensor_axle']} sensor axle, ppr {round(2 * math.pi * 0.3 / true['dpp_left'])}-ish, "
+    print(f"vehicle {v}: {true['sensor_axle']} sensor axle, {100 * true['dpp_left']:.2f}-cm pulses, "
           f"tyres {1e6 * (true['dpp_right'] / true['dpp_left'] - 1):+.0f} ppm; identify on "
           f"{len(train)} x {duration / 60:.0f} min ({', '.join(train_kinds)}) in {wall:.0f} s, "
           f"{report.get('iterations', '?')} iterations; --fit {','.join(keys)}")

@@ -44,6 +44,27 @@ def test_the_drive_is_deterministic_and_the_parameter_file_is_valid(tmp_path):
     assert {"P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right"} <= set(json.loads(Path(a[1]).read_text()))
 
 
+def test_a_vehicle_seed_drives_one_vehicle_on_the_routes_of_other_seeds(tmp_path):
+    """``vehicle_seed`` (bench_identify_independent): the vehicle is drawn from it alone, so two routes share it; the
+    route, the driver and the start heading stay those of the drive's own seed (its path within a millimetre of the
+    drive's without)."""
+    vehicle_keys = ("sensor_axle", "P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right", "counter_modulus")
+    drives = {name: sim.make_drive(kind, seed, tmp_path / name, duration=60.0, vehicle_seed=vehicle)
+              for name, kind, seed, vehicle in (("own", "urban", 5, None), ("urban", "urban", 5, 7),
+                                                ("mixed", "mixed", 6, 7))}
+    params = {name: json.loads(Path(p).read_text()) for name, (_, p) in drives.items()}
+    assert {k: params["urban"][k] for k in vehicle_keys} == {k: params["mixed"][k] for k in vehicle_keys}
+    assert params["urban"]["B"] != params["own"]["B"] and params["urban"]["dpp_left"] != params["own"]["dpp_left"]
+    assert Path(drives["urban"][0]).name == "indep_urban_s5_v7.csv"
+    truth = {name: np.loadtxt(Path(c).with_suffix(".truth.csv"), delimiter=",", skiprows=1)
+             for name, (c, _) in drives.items()}
+    header = Path(drives["own"][0]).with_suffix(".truth.csv").read_text().splitlines()[0].split(",")
+    xy = [header.index("x_m"), header.index("y_m")]
+    # (The vehicle's own slip moves the reference point by micrometres.)
+    np.testing.assert_allclose(truth["urban"][:, xy], truth["own"][:, xy], atol=1e-3)
+    assert np.max(np.abs(truth["mixed"][:, xy] - truth["own"][:, xy])) > 10.0
+
+
 def test_a_parameter_file_a_little_off_changes_only_the_right_wheels_dpp(tmp_path):
     _, params_path = sim.make_drive("highway", 3, tmp_path, duration=30.0)
     true = json.loads(Path(params_path).read_text())
