@@ -14,7 +14,9 @@ a rejected sample keeps the vehicle's real motion instead of dropping it:
   of dD/AD, per sample or over GUARD_WINDOW_M of the raw counts, is no vehicle's turn (a sensor that stopped
   counting: dD/AD = 2); on either axle, a wheel that reads nothing while turning about it would be a lateral
   acceleration beyond MAX_LATERAL_ACCEL.  Such samples are replaced by the other wheel's travel with no turn for
-  as long as they last, and ``dD_sigma`` hands the filter that turn's uncertainty.
+  as long as they last, and ``dD_sigma`` hands the filter that turn's uncertainty.  One sample on which a wheel
+  counts beyond its own recent rate while both count is a burst however large (removed as below), not a wheel that
+  stopped counting; from the second such sample in a row it is impossible again (a chattering sensor).
 
 Which wheel is at fault: the one whose increment departs more from its own recent rate.  The
 whole number of pulses by which it departs from the other wheel's increment plus (or minus) the
