@@ -93,3 +93,23 @@ def test_a_skid_steer_pivot_is_believed():
     kept, sigmas = _guard_run(rear, left, right)
     np.testing.assert_allclose(np.sum(kept[:, 0] - kept[:, 1]), np.sum(left - right), atol=0.041)
     assert not any(sigmas)
+
+
+def test_one_over_counting_sample_is_a_burst_and_a_chattering_wheel_stays_impossible():
+    """Front axle at 4 m/s: 30 spurious pulses of 2 cm on the left wheel in one sample is dD/AD = 1.5, beyond twice
+    eq. (14)'s largest curvature, yet both wheels count and the left one beyond its rate: a burst, removed with the
+    turn kept and no dD_sigma (it was substituted as a stuck wheel, its turn unknown).  The same 30 pulses on every
+    sample of a second (a chattering sensor) are impossible from the second sample on: substituted, the turn
+    handed to the filter as unknown, and none of the extra pulses kept."""
+    params = jm.make_params({"dpp_left": 0.02, "dpp_right": 0.02})
+    n = 200
+    right = _quantized(np.cumsum(np.full(n, 0.4)), 0.02)
+    burst = right.copy()
+    burst[100] += 30 * 0.02
+    kept, sigmas = _guard_run(params, burst, right)
+    assert abs(np.sum(kept[:, 0] - kept[:, 1])) < 0.021 and all(v == 0.0 for v in sigmas)
+    chatter = right.copy()
+    chatter[100:110] += 30 * 0.02
+    kept, sigmas = _guard_run(params, chatter, right)
+    assert abs(np.sum(kept[:, 0] - kept[:, 1])) < 0.021
+    assert sigmas[100] == 0.0 and all(v > 0.0 for v in sigmas[101:110]) and all(v == 0.0 for v in sigmas[111:])
