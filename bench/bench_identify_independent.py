@@ -39,15 +39,16 @@ sys.path.insert(0, HERE)
 sys.path.insert(0, ROOT)
 import independent_sim as sim  # noqa: E402
 import jax  # noqa: E402
+from bench_independent import SKIP_S, find_cli  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import jaxmodel as jm  # noqa: E402
+from bench._common import rmse_deg  # noqa: E402
 from identification.drive_log import read_drive  # noqa: E402
 from identification.estimate import estimate_drive  # noqa: E402
 
-SKIP_S = 60.0
 VEHICLE_KEYS = ("P", "B", "T_F", "T_R", "a", "dpp_left", "dpp_right")
 FILTER_KEYS = ("T_C", "D_N")
 
@@ -66,13 +67,7 @@ def fit_keys(true):
 
 def rmse_after(cols, drive):
     keep = np.asarray(drive.inputs.time_s) >= SKIP_S
-    e = np.angle(np.exp(1j * (np.radians(cols["heading_deg"]) - np.asarray(drive.ref_heading))))[keep]
-    return float(np.degrees(np.sqrt(np.mean(e ** 2))))
-
-
-def cli():
-    cand = os.path.join(ROOT, ".venv", "bin", "odocompass")
-    return cand if os.path.exists(cand) else "odocompass"
+    return rmse_deg(np.asarray(cols["heading_deg"])[keep], np.asarray(drive.ref_heading)[keep])
 
 
 def one_vehicle(v, train_kinds, held_kinds, duration, work):
@@ -89,7 +84,7 @@ def one_vehicle(v, train_kinds, held_kinds, duration, work):
     out_path = os.path.join(work, f"v{v}.fitted.json")
     with open(start_path, "w") as f:
         json.dump(start, f, indent=1)
-    cmd = [cli(), "identify", "-q", *[c for c, _ in train], "--params", start_path, "--out", out_path,
+    cmd = [find_cli(), "identify", "-q", *[c for c, _ in train], "--params", start_path, "--out", out_path,
            "--fit", ",".join(keys), "--validate", *[c for c, _ in held]]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
