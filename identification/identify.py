@@ -81,6 +81,11 @@ class Stage:
     lag_m: float = 0.0       # > 0: heading changes over this many metres travelled (overrides lag_s)
 
 
+START_RATIO_TOLERANCE = 2e-3
+"""A fitted dpp starts from the training drives' own tyre ratio where the file's is further than this from it
+(``_start_tyres``; 2e-3 turns the wheel heading by ~30 deg over a 30-s increment at 15 m/s: no wrap)."""
+
+
 def _as_drive(d):
     from .drive_log import Drive, read_drive
 
@@ -404,8 +409,9 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
     requested_reference = reference
     reference = resolve_reference(reference, train, validate)
 
+    start, tyres_note = _start_tyres(start, keys, reference, train)
     inputs, ref, sample_mask, mask = stack(train)
-    warnings: list[str] = []
+    warnings: list[str] = [tyres_note] if tyres_note else []
     eval_mode = "kalman" if mode == "kalman" else "complementary"
     eval_config = jaxmodel.Config(mode=eval_mode, **switches)
     all_drives = train + validate
@@ -456,6 +462,30 @@ def identify(train_drives, init_params, fit=L.DEFAULT_FIT, validate_drives=(), m
                      n_train=len(train))
     report["wall_time_s"] = time.perf_counter() - t_start
     return fitted, report
+
+
+def _start_tyres(start, keys, reference, train):
+    """(start, note or None): a fitted dpp_right (else dpp_left) started from the tyres' ratio that the training drives'
+    reference heading gives (wheel_scales.ratio_from_reference) where the file's is more than START_RATIO_TOLERANCE
+    from it.  The heading changes the wheel stage fits wrap at +-180 deg: a 1.25 % mismatch the file did not know
+    turned the wheel heading by ~200 deg within 30 s at 15 m/s, and the fit went to +2.1 % (independent simulator,
+    vehicle 5; docs/tuning.md, stop 89).  The start is also the prior's mean."""
+    from . import wheel_scales
+
+    fitted = [k for k in ("dpp_right", "dpp_left") if k in keys]
+    if reference != "heading" or not fitted:
+        return start, None
+    ratio = wheel_scales.ratio_from_reference(start, train)
+    file_ratio = float(start.dpp_right) / float(start.dpp_left)
+    if ratio is None or abs(ratio / file_ratio - 1.0) <= START_RATIO_TOLERANCE:
+        return start, None
+    key = fitted[0]
+    new = (start._replace(dpp_right=np.float64(float(start.dpp_left) * ratio)) if key == "dpp_right"
+           else start._replace(dpp_left=np.float64(float(start.dpp_right) / ratio)))
+    return new, (f"{key} starts at {float(getattr(new, key)):.9g} m, not the file's {float(getattr(start, key)):.9g}: "
+                 f"against their reference heading the training drives' straight windows put the tyres "
+                 f"{1e6 * (ratio - 1.0):+.0f} ppm apart, the file {1e6 * (file_ratio - 1.0):+.0f} ppm (the prior is "
+                 f"centred there too)")
 
 
 def parameter_rows(space, stage_name, z, se, ratio, signal, status) -> dict[str, dict]:

@@ -167,6 +167,21 @@ def from_compass(params, drive, config=None) -> WheelScales | None:
                np.asarray(out.odometer_valid), np.asarray(out.speed))
 
 
+def ratio_from_reference(params, drives) -> float | None:
+    """The tyres' ratio dpp_right / dpp_left that (1) finds with the drives' reference heading (``ref_heading``, rad)
+    in place of H_C: the median over the drives that can tell (``fit``), None where none can.  ``identify`` starts a
+    fitted dpp from it (a 1.25 % mismatch turns the wheel heading by 200 deg within its 30-s increments)."""
+    ratios = []
+    for drive in drives:
+        ref = None if drive.ref_heading is None else np.asarray(drive.ref_heading, np.float64)
+        if ref is None:
+            continue
+        scales = fit(params, drive, np.nan_to_num(ref), np.isfinite(ref), np.ones_like(ref))
+        if scales is not None:
+            ratios.append(scales.dpp_right / scales.dpp_left)
+    return float(np.median(ratios)) if ratios else None
+
+
 def applied(params, scales: WheelScales | None):
     """``params`` with the fitted distances per pulse (unchanged when ``scales`` is None)."""
     if scales is None:
