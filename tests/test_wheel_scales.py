@@ -123,3 +123,31 @@ def test_another_simulators_vehicle_is_found_and_estimate_uses_it(tmp_path, caps
     assert rmse_after_first_minute(t, err) < 2.0
     t, err = heading_error_deg(csv_path, params)
     assert rmse_after_first_minute(t, err) > 4.0  # the nominal vehicle without the fit
+
+
+def test_identify_starts_a_fitted_dpp_from_the_reference_headings_tyre_ratio(tmp_path):
+    """identify's wheel stage fits 30-s heading changes, which wrap at +-180 deg: vehicle 5 of the independent
+    simulator (tyres -1.25 % apart, a file with none) turned ~200 deg within 30 s, and the fit went to +2.1 %
+    (bench_identify_independent, stop 89).  Its fitted dpp now starts from the ratio (1) finds against the drives'
+    reference heading; a file within START_RATIO_TOLERANCE of it, or fixes as the reference, are left as they are."""
+    from identification.diagnostics import checked_params
+    from identification.drive_log import read_drive
+    from identification.identify import START_RATIO_TOLERANCE, _start_tyres
+
+    path, params_path = independent_sim.make_drive("urban", 1050, tmp_path, duration=600.0, vehicle_seed=5)
+    true, _ = checked_params(params_path)
+    true_ratio = float(true.dpp_right) / float(true.dpp_left)
+    mean = 0.5 * (float(true.dpp_left) + float(true.dpp_right))
+    datasheet = true._replace(dpp_left=np.float64(mean), dpp_right=np.float64(mean))
+    drive = read_drive(path)
+    assert wheel_scales.ratio_from_reference(datasheet, [drive]) == pytest.approx(true_ratio, abs=1e-4)
+    started, note = _start_tyres(datasheet, ("T_R", "a", "dpp_right"), "heading", [drive])
+    assert float(started.dpp_right) / float(started.dpp_left) == pytest.approx(true_ratio, abs=1e-4)
+    assert float(started.dpp_left) == mean and "dpp_right starts at" in note and "ppm apart" in note
+    started, note = _start_tyres(datasheet, ("T_R", "a", "dpp_left"), "heading", [drive])
+    assert float(started.dpp_right) / float(started.dpp_left) == pytest.approx(true_ratio, abs=1e-4)
+    assert float(started.dpp_right) == mean and "dpp_left starts at" in note
+    for params, keys, reference in ((true, ("dpp_right",), "heading"), (datasheet, ("T_R", "a"), "heading"),
+                                    (datasheet, ("dpp_right",), "fixes")):
+        assert _start_tyres(params, keys, reference, [drive]) == (params, None)
+    assert abs(true_ratio - 1.0) > 5 * START_RATIO_TOLERANCE
