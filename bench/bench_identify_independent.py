@@ -112,13 +112,14 @@ def one_vehicle(v, train_kinds, held_kinds, duration, work):
     print(f"  {axle_t + '/dpp':12s} {scale(start):12.2f} {scale(fitted):12.2f} {scale(true):12.2f}   "
           f"(fitted/true - 1: {scale(fitted) / scale(true) - 1:+.2%})")
     print(f"  {'ratio, ppm':12s} {ratio(start):12.0f} {ratio(fitted):12.0f} {ratio(true):12.0f}")
-    files = {"start": start, "fitted": fitted, "true": dict(start, **{k: true[k] for k in VEHICLE_KEYS})}
+    files = {name: jm.make_params(p) for name, p in
+             (("start", start), ("fitted", fitted), ("true", dict(start, **{k: true[k] for k in VEHICLE_KEYS})))}
     rows = []
     for (csv_path, _), kind in zip(held, held_kinds):
         drive = read_drive(csv_path)
         for mode in ("odometer", "complementary"):
-            r = {name: rmse_after(estimate_drive(jm.make_params(p), drive, jm.Config(mode=mode)), drive)
-                 for name, p in files.items()}
+            r = {name: rmse_after(estimate_drive(params, drive, jm.Config(mode=mode)), drive)
+                 for name, params in files.items()}
             rows.append((kind, mode, r))
             print(f"  held-out {kind:12s} {mode:14s} RMSE start {r['start']:6.2f}  fitted {r['fitted']:6.2f}  "
                   f"true {r['true']:6.2f} deg   fitted/true {r['fitted'] / r['true']:5.2f}")

@@ -173,9 +173,9 @@ def ratio_from_reference(params, drives) -> float | None:
     fitted dpp from it (a 1.25 % mismatch turns the wheel heading by 200 deg within its 30-s increments)."""
     ratios = []
     for drive in drives:
-        ref = None if drive.ref_heading is None else np.asarray(drive.ref_heading, np.float64)
-        if ref is None:
+        if drive.ref_heading is None:
             continue
+        ref = np.asarray(drive.ref_heading, np.float64)
         scales = fit(params, drive, np.nan_to_num(ref), np.isfinite(ref), np.ones_like(ref))
         if scales is not None:
             ratios.append(scales.dpp_right / scales.dpp_left)

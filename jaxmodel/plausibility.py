@@ -146,6 +146,7 @@ class _Checks(NamedTuple):
     pred_dD: jnp.ndarray     # m, dD predicted from its rate
     left_fast: jnp.ndarray   # the wheel's increment is beyond max_speed
     right_fast: jnp.ndarray
+    left_departs: jnp.ndarray  # the left increment departs from its rate at least as far as the right one
     dD: jnp.ndarray          # m, the raw dD
     turn_bad: jnp.ndarray    # dD departs from its prediction beyond ``course_tolerance``
     speed_ok: jnp.ndarray    # counts_ok and neither wheel beyond max_speed
@@ -214,7 +215,8 @@ def _checks(params, g, d_left, d_right, step_dt, moved_dt, counts_ok, dpp, held)
     tol = course_tolerance(params, dpp, moved_dt)
     turn_bad = (jnp.abs(dD - pred_dD) > tol) & (step_dt <= GUARD_HORIZON_S) & ~held
     speed_ok = counts_ok & ~left_fast & ~right_fast
-    return _Checks(pred_left, pred_right, pred_dD, left_fast, right_fast, dD, turn_bad, speed_ok)
+    left_departs = jnp.abs(d_left - pred_left) >= jnp.abs(d_right - pred_right)
+    return _Checks(pred_left, pred_right, pred_dD, left_fast, right_fast, left_departs, dD, turn_bad, speed_ok)
 
 
 def _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track):
@@ -241,8 +243,7 @@ def _impossible(params, g, d_left, d_right, c, dpp, moved_dt, c_max, track):
     # off and no vernier, and the default mode, told the turn was unknown to 3.4 deg, followed a compass 3 deg off
     # (independent simulator, mixed s60; docs/tuning.md, stop 89).  A wheel that over-counts sample after sample (a
     # chattering sensor) stays impossible from its second sample on: substituted however long it lasts.
-    left_at_fault = jnp.abs(d_left - c.pred_left) >= jnp.abs(d_right - c.pred_right)
-    over_counts = jnp.where(left_at_fault, jnp.abs(d_left) > jnp.abs(c.pred_left),
+    over_counts = jnp.where(c.left_departs, jnp.abs(d_left) > jnp.abs(c.pred_left),
                             jnp.abs(d_right) > jnp.abs(c.pred_right))
     burst = ~one_dead & over_counts & (g.substituted < 0.5)
     impossible = computed_once(c.speed_ok & ~burst & (dead_at_speed | ((params.sensor_axle > 0.5) & (
@@ -290,7 +291,7 @@ def _substitution(g, d_left, d_right, c, impossible, dead_left, one_dead, counts
 def _blame_left(c, d_left, d_right, impossible, dead_left, one_dead):
     """Whether the wheel at fault is the left one: the one beyond max_speed, else the one whose increment departs
     more from its own recent rate, or the one reading nothing in an impossible turn."""
-    blame_left = c.left_fast | (~c.right_fast & (jnp.abs(d_left - c.pred_left) >= jnp.abs(d_right - c.pred_right)))
+    blame_left = c.left_fast | (~c.right_fast & c.left_departs)
     # An impossible turn with one wheel reading nothing: that wheel stopped counting (the other may well be
     # accelerating away from its rate).
     return jnp.where(impossible & one_dead, dead_left, blame_left)

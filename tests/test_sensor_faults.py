@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import jaxmodel as jm
-from identification.drive_log import read_drive
+from identification.diagnostics import checked_params
+from identification.drive_log import read_drive, wrap_deg
 from independent_drives import heading_error_deg, independent_sim, unidentified_params
 from jaxmodel import compass as jc
 
@@ -105,6 +106,14 @@ def test_a_burst_on_one_wheel_of_a_standing_car_is_no_turn(tmp_path, kind, seed,
     assert faulted < clean + (0.25 if mode == "complementary" else 1.0)
 
 
+def _own_drive(tmp_path, kind, seed, n):
+    """(the drive's own parameter file as Params, its first ``n`` samples as jnp Inputs) of an independent drive."""
+    path, params_path = independent_sim.make_drive(kind, seed, tmp_path)
+    params, _ = checked_params(params_path)
+    inputs = read_drive(path).inputs
+    return params, type(inputs)(*(jnp.asarray(np.asarray(v)[:n]) for v in inputs))
+
+
 @pytest.mark.slow
 def test_a_burst_removed_by_rounding_is_not_the_tyres(tmp_path):
     """urban_hilly seed 61 (43 pulses per revolution, tyres 0.63 % apart, the drive's own parameter file), the first
@@ -114,12 +123,7 @@ def test_a_burst_removed_by_rounding_is_not_the_tyres(tmp_path):
     320 s (the bench: +3.27 deg RMSE from the first glitch on).  A window with a substituted sample ends its stretch now
     (odometer's ``counted``): the ratio stays the clean drive's (within 5e-8: a stretch fewer; the spike alone, a
     counter fault already discarded, 3.5e-6)."""
-    from identification.diagnostics import checked_params
-
-    path, params_path = independent_sim.make_drive("urban_hilly", 61, tmp_path)
-    params, _ = checked_params(params_path)
-    inputs = read_drive(path).inputs
-    inputs = type(inputs)(*(jnp.asarray(np.asarray(v)[:4000]) for v in inputs))  # 400 s
+    params, inputs = _own_drive(tmp_path, "urban_hilly", 61, 4000)  # 400 s
     right = np.asarray(inputs.right_pulses).copy()
     right[868] = (right[868] - 3000) % params.counter_modulus
     right[1012:] = (right[1012:] + 35) % params.counter_modulus
@@ -129,7 +133,7 @@ def test_a_burst_removed_by_rounding_is_not_the_tyres(tmp_path):
     assert np.isclose(float(inputs.time_s[1012]), 101.2)
     assert np.max(np.abs(np.asarray(faulted.dpp_ratio) - np.asarray(clean.dpp_ratio))) < 1e-5
     # What remains is the pulse the guard missed, as one step (1.41 deg for this vehicle).
-    step = np.degrees(np.angle(np.exp(1j * (np.asarray(faulted.wheel_heading) - np.asarray(clean.wheel_heading)))))
+    step = wrap_deg(np.degrees(np.asarray(faulted.wheel_heading) - np.asarray(clean.wheel_heading)))
     assert np.all(np.abs(step[1100:]) < 1.6)
 
 
@@ -142,18 +146,13 @@ def test_a_large_burst_at_low_speed_is_a_burst_not_a_stuck_wheel(tmp_path, mode)
     reliability fell 0.64 -> 0.35 and the heading followed a compass 3 deg off: 3.58 deg (default) and 7.02 deg
     (Kalman mode) from the clean drive's.  One sample on which a wheel over-counts while both count is a burst now:
     0.81 deg at most (the pulse the removal missed, 0.71 deg), the reliability the clean drive's."""
-    from identification.diagnostics import checked_params
-
-    path, params_path = independent_sim.make_drive("mixed", 60, tmp_path)
-    params, _ = checked_params(params_path)
-    inputs = read_drive(path).inputs
-    inputs = type(inputs)(*(jnp.asarray(np.asarray(v)[:3000]) for v in inputs))  # 300 s
+    params, inputs = _own_drive(tmp_path, "mixed", 60, 3000)  # 300 s
     left = np.asarray(inputs.left_pulses).copy()
     left[2269:] = (left[2269:] + 29) % params.counter_modulus
     config = jm.Config(mode=mode)
     clean, faulted = (jm.run(params, i, config) for i in (inputs, inputs._replace(left_pulses=jnp.asarray(left))))
     assert np.isclose(float(inputs.time_s[2269]), 226.9)
-    diff = np.degrees(np.angle(np.exp(1j * (np.asarray(faulted.heading) - np.asarray(clean.heading)))))
+    diff = wrap_deg(np.degrees(np.asarray(faulted.heading) - np.asarray(clean.heading)))
     assert np.max(np.abs(diff)) < 1.0
     reliability = [float(np.min(np.asarray(o.heading_reliability)[2269:2369])) for o in (clean, faulted)]
     assert reliability[1] > reliability[0] - 0.01
