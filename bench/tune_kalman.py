@@ -36,7 +36,7 @@ import jaxmodel as jm  # noqa: E402
 from identification.drive_log import drive_from_columns  # noqa: E402
 from identification.simulate import simulate  # noqa: E402
 
-TUNED = ("kf_gm_tau_s", "kf_gm_sigma_deg", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma", "kf_white_sigma_deg",
+TUNED = ("kf_gm_tau_s", "kf_gm_m", "kf_gm_sigma_deg", "kf_drift_psd", "kf_drift_per_m", "kf_turn_sigma", "kf_white_sigma_deg",
          "kf_compass_sigma_deg", "kf_compass_corr_m", "kf_fix_sigma_m", "kf_speed_sigma", "kf_pos_psd",
          "kf_fix_gm_sigma_m", "kf_fix_gm_tau_s", "kf_ramp_psd")
 TRAIN = [  # (scenario, seed, fixes model or None for no fixes)

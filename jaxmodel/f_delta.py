@@ -168,7 +168,8 @@ def robust_f_delta(params, state, config, sample, odo, h_c, h_c_raw, harmonics_o
                 offset=offset, steady=steady, shown=shown, f_delta=f_delta,
                 complementary=complementary, field_sum=field_sum, field_count=field_count, shift=shift,
                 clean_weight=clean_weight, sigma=sigma, field_restart=lost_restart & learns_shift(config),
-                lost_restart=lost_restart, wheel_step=wheel_step)
+                lost_restart=lost_restart, wheel_step=wheel_step,
+                tilt_error=_field_tilt.heading_error(shown, tilt))
 
 
 def seed_f_delta(params, state, sample, odo, h_c, field, e_w, e_c, compass_ok, wheel_heading, initialized,

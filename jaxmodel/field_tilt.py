@@ -99,6 +99,12 @@ def roll_reaching_heading(params, tilt, has_reference):
     return tilt[0], jnp.where(has_reference & reads_field(params), tilt[1], 0.0)
 
 
+def heading_error(fs, tilt):
+    """What the grade and the roll turn the compass heading by (rad): g sin(psi_m) + r cos(psi_m), with g, r the
+    offset filter ``fs``'s estimates and ``tilt`` from ``roll_reaching_heading`` (r only where |B| is read)."""
+    return fs.g * tilt[0] + fs.r * tilt[1]
+
+
 def update(params, fs, b_m, tilt, ok, d_t, dt, ln_reference, has_reference, reading_dt=None):
     """The offset filter ``fs`` updated with ln(|B| / B_E) = -g cos(psi_m) + r sin(psi_m) (``offset_filter.measure``,
     h = [0, 0, 0, 0, -cos, sin]), noise ``filter_field_sigma`` counted as the heading's (per filter_compass_corr_m

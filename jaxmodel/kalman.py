@@ -5,7 +5,8 @@ An error-state Kalman filter with eight states and small fixed-size jnp matrices
     x = [dth1, dth2, eps, dN, dE, bN, bE, beta]
 
 * Course-error model of claim 1: dth = dth1 + dth2 + dth3, with dth1 a first-order
-  Gauss-Markov process (time constant kf_gm_tau_s, stationary sigma kf_gm_sigma_deg), dth2 a
+  Gauss-Markov process (time constant kf_gm_tau_s and correlation distance kf_gm_m, Phi = exp(-dt/tau - |s|/L),
+  stationary sigma kf_gm_sigma_deg; the seed's is in time alone, but an anomaly is a place), dth2 a
   drift angle with an unknown start value whose pitch eps is a random ramp (eps a random walk,
   PSD kf_ramp_psd; dth2 also gets random-walk noise per second kf_drift_psd, per metre
   kf_drift_per_m and per turned radian kf_turn_sigma), and dth3 Gaussian white noise
@@ -33,8 +34,10 @@ of their difference, z = wrap(H_W - H_C) = dth1 + dth2 + dth3 (H = [1, 1, 0, 0, 
 component is given to the sensor whose physics it describes:
 * the course that is dead-reckoned is the wheel heading H_W (the odometer integrates, so its
   error is the drift with a random ramp, dth2);
-* the compass's error is bounded and correlated in time (magnetic anomalies, dip errors on
-  hills: the Gauss-Markov dth1) plus white noise (dth3, with the wheel pulse quantization);
+* the compass's error is bounded and correlated in time and over the road (magnetic anomalies, dip errors on
+  hills: the Gauss-Markov dth1) plus white noise (dth3, with the wheel pulse quantization); what the grade and
+  the roll turn it by at each heading, as the robust F-DELTA estimated it (field_tilt), is taken out of H_C
+  before (model._kalman_compass, step 2's deterministic corrections);
 * the corrected course is C_th = H_W - dth2^, and only dth2 drives the position errors.
 Tried on simulated drives: putting dth1 into the dead-reckoned course as well (C_th = H_W -
 dth1^ - dth2^) tunes to a vanishing dth1 and is no better; this split uses all three parts.
@@ -153,8 +156,8 @@ def transition(params, dt, s, course, alpha=0.0, turn_sigma=0.0):
     """Phi, Q of one sample: dt (s), s corrected signed distance (m), course the corrected course (rad),
     alpha the wheel course change of the sample (rad), turn_sigma (rad) the uncertainty of a turn the odometer's guard
     substituted (plausibility.py ``dD_sigma`` / track; 0 for counted turns): added to dth2's process noise."""
-    tau = params.kf_gm_tau_s
-    e1 = jnp.exp(-dt / tau)
+    # dth1 decorrelates with time and with the road driven (an anomaly is a place, not a moment).
+    e1 = jnp.exp(-dt / params.kf_gm_tau_s - jnp.abs(s) / params.kf_gm_m)
     sig_gm2 = deg(params.kf_gm_sigma_deg) ** 2
     q_ramp = params.kf_ramp_psd
     q_drift = params.kf_drift_psd

@@ -313,6 +313,20 @@ def _heading_bound(params, config, fd, kalman_state, wheel_heading, h_c, e_w, e_
     return bound
 
 
+def _kalman_compass(fd, h_c):
+    """The compass course the Kalman mode measures (rad): H_C less the grade's and the roll's error that the robust
+    F-DELTA estimated (``field_tilt.heading_error``; the seed filter's F-DELTA has none: H_C as it is).
+
+    US 4,680,715 step 2 takes the known deterministic course errors out of the compass course before the filter (the
+    deviation table, the soft iron's deviation learned beside F-DELTA, here also the tilt); its dth1, one
+    Gauss-Markov error for every heading, cannot tell a heading-dependent error from the wheels' offset.  On the
+    independent simulator's drives (hard-iron residual, dip on grades) the Kalman mode without fixes followed the
+    compass 2-5 deg off for minutes where the default, which models them, did not (docs/tuning.md, stop 90)."""
+    if "tilt_error" not in fd:
+        return h_c
+    return wrap(h_c - fd["tilt_error"])
+
+
 def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, track_table=None):
     """Process one sample; returns (new state, Outputs).  See the module docstring for the order.
 
@@ -402,7 +416,8 @@ def step(params, state: State, sample: Inputs, config: Config = DEFAULT_CONFIG, 
     kalman_state, kalman_heading, kalman_x, kalman_y = _kalman.kalman_step(
         params, kalman_before, dt=odo["dt"], dt_counts=odo["dt_counts"], held=odo["held"], distance=odo["AD"],
         alpha=alpha, wheel_heading=wheel_heading,
-        compass_heading=h_c, compass_ok=compass_ok & (initialized > 0.5), e_c=e_c, fix_east=sample.fix_east_m,
+        compass_heading=_kalman_compass(fd, h_c), compass_ok=compass_ok & (initialized > 0.5), e_c=e_c,
+        fix_east=sample.fix_east_m,
         fix_north=sample.fix_north_m, fix_valid=sample.fix_valid, odometer_ok=odo["kept"],
         initialized=initialized, map_heading=fd["absolute"], map_used=fd["map_used"], enabled=config.mode == "kalman",
         rate_change=rate_change, rate_variance=_kalman.released_rate_variance(params, offset, kalman_before),

@@ -149,7 +149,8 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("cal_max_correction", 0.03, "1", "EP 0619873: the ratio stays within this (relative) of dpp_right/dpp_left"),
     # --- Kalman mode, US 4,680,715 (jaxmodel/kalman.py) -----------------------------------
     ParamSpec("kf_gm_tau_s", 660.0, "s", "US 4,680,715: time constant of the Gauss-Markov course error dth1 (the compass's colored error)"),
-    ParamSpec("kf_gm_sigma_deg", 1.46, "deg", "US 4,680,715: stationary sigma of dth1 (anomalies, dip errors on hills)"),
+    ParamSpec("kf_gm_m", 180.0, "m", "correlation distance of dth1 (magnetic anomalies are places: the compass's colored error also decorrelates over the road driven; 1e9: time alone, as the seed)"),
+    ParamSpec("kf_gm_sigma_deg", 0.7, "deg", "US 4,680,715: stationary sigma of dth1 (anomalies, dip errors on hills)"),
     ParamSpec("kf_heading_sigma0_deg", 3.0, "deg", "US 4,680,715: initial sigma of the drift angle dth2 (heading started from one compass sample)"),
     ParamSpec("kf_ramp_sigma0_deg_per_min", 0.02, "deg/min", "US 4,680,715: initial sigma of the ramp pitch eps"),
     ParamSpec("kf_ramp_psd", 2.4e-13, "rad2/s3", "US 4,680,715: PSD of the white noise driving the ramp pitch eps (random ramp)"),
@@ -248,7 +249,7 @@ POSITIVE_KEYS = (
     "turn_curvature", "compass_error_scale_deg", "refine_compass_max_error_deg",
     "cal_check_distance_m", "cal_ratio_bound", "cal_stretch_distance_m", "cal_compass_tolerance_deg",
     "cal_sanity_bound", "cal_steady_bound", "cal_sanity_boost", "cal_filter_stretches", "cal_stretch_sigma", "cal_max_correction",
-    "kf_gm_tau_s", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
+    "kf_gm_tau_s", "kf_gm_m", "kf_fix_gm_tau_s", "kf_fix_sigma_m", "kf_heading_sigma0_deg", "kf_pos_sigma0_m", "kf_max_accel",
     "kf_max_yaw_rate_deg_s", "kf_speed_factor", "filter_gm_m", "filter_tilt_m", "filter_sigma0_deg", "filter_compass_sigma_deg", "filter_compass_corr_m", "filter_check_m", "filter_check_sigma_deg", "filter_gate_sigma",
     "filter_reacquire_m", "filter_rate_corr_m", "filter_reacquire_step_m", "filter_reject_harden_m", "filter_reacquire_large_deg", "filter_reacquire_lost_m", "filter_reacquire_lost_steady_m", "field_learn_gate", "field_memory_m", "hard_iron_memory_m", "hard_iron_min_turn_deg", "hard_iron_gate")
 """Time constants, lengths, scales and divisors: zero or negative values make the equations meaningless."""

@@ -14,7 +14,7 @@ from jaxmodel import kalman as K
 def _np_matrices(p, dt, s, course):
     """Phi, Q written again in NumPy from the formulas of jaxmodel/kalman.py's docstring."""
     d = math.radians
-    e1 = math.exp(-dt / p["kf_gm_tau_s"])
+    e1 = math.exp(-dt / p["kf_gm_tau_s"] - abs(s) / p["kf_gm_m"])  # dth1 decorrelates in time and over the road
     sn, cs = math.sin(course), math.cos(course)
     ef = math.exp(-dt / p["kf_fix_gm_tau_s"])
     phi = np.eye(8)
