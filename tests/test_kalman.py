@@ -43,6 +43,22 @@ def _np_matrices(p, dt, s, course):
     return phi, q
 
 
+def test_dth1_decorrelates_over_the_road_not_while_standing():
+    """Phi_11 = exp(-dt/kf_gm_tau_s - |s|/kf_gm_m): an anomaly is a place, so standing still the compass error keeps
+    (time alone), driving kf_gm_m metres decorrelates it by e; kf_gm_m = 1e9 is the seed's time-only process."""
+    p = jm.make_params()
+    tau, L = float(p.kf_gm_tau_s), float(p.kf_gm_m)
+    for s in (0.0, 3.0, -3.0, L):  # reversing decorrelates as driving forward does
+        phi, q = K.transition(p, 0.1, s, 0.3)
+        e1 = math.exp(-0.1 / tau - abs(s) / L)
+        assert float(phi[K.I_GM, K.I_GM]) == pytest.approx(e1, rel=1e-12)
+        assert float(q[K.I_GM, K.I_GM]) == pytest.approx(math.radians(float(p.kf_gm_sigma_deg)) ** 2 * (1 - e1 ** 2),
+                                                         rel=1e-12)
+    seed = p._replace(kf_gm_m=jnp.asarray(1e9))
+    assert float(K.transition(seed, 0.1, 30.0, 0.3)[0][K.I_GM, K.I_GM]) == pytest.approx(math.exp(-0.1 / tau),
+                                                                                         rel=1e-7)
+
+
 def _np_kf(p, samples, p0):
     """A plain textbook Kalman filter (standard-form covariance update, np.linalg.inv)."""
     d = math.radians
