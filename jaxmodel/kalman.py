@@ -75,8 +75,9 @@ Steps of claim 1, per sample:
    The first fix is taken without the gate (it may be far from a dead-reckoned start).
 
 5. Re-acquisition (``_reacquire``): a course measurement that disagrees with the course by more than
-   filter_reacquire_large_deg for filter_reacquire_lost_m, that is beyond the gate for filter_reacquire_m, or
-   that far off when the complementary filter restarts as lost, restarts dth1, dth2, eps from it; the next fix
+   filter_reacquire_large_deg for filter_reacquire_lost_m, that is beyond the gate for filter_reacquire_m, that
+   far off when the complementary filter restarts as lost, or more than CORROBORATED_DISAGREEMENT_DEG off while
+   the fixes are rejected in a row, restarts dth1, dth2, eps from it; the next fix
    then repositions (``_reposition``), as does one after FIX_REACQUIRE_COUNT fixes in a row beyond the gate.
 
 Without fixes the filter runs on the compass alone.  All noise parameters are kf_* entries of
@@ -125,6 +126,7 @@ class KalmanState(NamedTuple):
     disagreement: jnp.ndarray  # running course innovation over filter_check_m (rad)
     lost_m: jnp.ndarray        # metres driven with |disagreement| beyond filter_reacquire_large_deg
     rejected_m: jnp.ndarray    # metres driven with every course measurement beyond the soft gate
+    corroborated_m: jnp.ndarray  # metres driven with the fixes rejected in a row and the compass far (_reacquire)
     fix_rejected: jnp.ndarray  # fixes in a row beyond the soft gate
     reposition: jnp.ndarray    # 1.0: the next fix repositions (after a course restart or fixes rejected in a row)
     alignment: AlignmentState  # the fixes against the wheels' track before the heading is started (fix_alignment)
@@ -148,7 +150,7 @@ def initial_covariance(params):
 def init_kalman_state(params):
     z = jnp.zeros((), jnp.float64)
     return KalmanState(x=z, y=z, err=jnp.zeros((N_STATES,), jnp.float64), cov=initial_covariance(params),
-                       speed=z, active=z, fixes=z, disagreement=z, lost_m=z, rejected_m=z,
+                       speed=z, active=z, fixes=z, disagreement=z, lost_m=z, rejected_m=z, corroborated_m=z,
                        fix_rejected=z, reposition=z, alignment=init_alignment_state())
 
 
@@ -253,6 +255,17 @@ _COURSE_BLOCK = _COURSE[:, None] | _COURSE[None, :]
 """The course states and their rows and columns of the covariance (a course restart resets them)."""
 
 
+CORROBORATING_FIX_COUNT = 10
+"""Fixes in a row beyond the soft gate that corroborate the compass's running disagreement (``_reacquire``)."""
+CORROBORATED_DISAGREEMENT_DEG = 20.0
+"""The compass's running disagreement (deg) beyond which fixes rejected in a row corroborate it (``_reacquire``)."""
+CORROBORATED_M = 50.0
+"""Metres driven so corroborated (counted as ``offset_filter.lost_distance``) after which the course restarts from the
+compass.  Chosen on the matrix's seeds 101-109 with 1-Hz fixes (10 / 30 / 50 / 100 m: the garage starts mended at 10-50
+m, two of five at 100 m, where the repositioning after FIX_REACQUIRE_COUNT fixes clears the count at parking speeds;
+docs/tuning.md, stop 91)."""
+
+
 def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_error, lost_elsewhere):
     """Restart the course states from the course measurement when the filter has lost it (err, cov after the
     course update; nu its innovation, d2 its Mahalanobis distance squared; course_error = wrap(H_W - measured
@@ -268,7 +281,14 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
     the complementary filter as lost (``lost_elsewhere``: its finer judgement, a steady disagreement after
     filter_reacquire_lost_steady_m, a garage left while standing) when the measurement, valid (``valid``; ``used``
     also asks for motion), is that far from this filter's course too (parking/garage_start drives of the matrix:
-    14-35 deg RMSE without it, stop 48).  Returns (err, cov, restarted, the watch fields of KalmanState).
+    14-35 deg RMSE without it, stop 48).
+    Below filter_reacquire_large_deg the compass alone is not believed (a car park turns it 30 deg for 100-500 m),
+    but fixes rejected CORROBORATING_FIX_COUNT times in a row say the course is wrong too: a running disagreement
+    beyond CORROBORATED_DISAGREEMENT_DEG so corroborated for CORROBORATED_M restarts the course as well.  A drive
+    started in a garage whose first 30 s of fixes had pulled the course from 62 to 54 deg off was left to the
+    fixes, which move a course that far off by ~0.3 deg/s (their linear error model; dth2's sigma was 0.8 deg with
+    the course 50 deg off): 8-14 deg RMSE with fixes, 0.5-1.2 without (stop 91).
+    Returns (err, cov, restarted, the watch fields of KalmanState).
     """
     keep = jnp.exp(-jnp.abs(s) / params.filter_check_m)
     disagreement = jnp.where(used, keep * ks.disagreement + (1.0 - keep) * nu, ks.disagreement)
@@ -277,15 +297,23 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
     rejected = used & (d2 > params.kf_gate_sigma ** 2) & (params.kf_gate_sigma > 0.0)
     rejected_m = jnp.where(rejected, ks.rejected_m + jnp.abs(s), jnp.where(used, 0.0, ks.rejected_m))
     far_now = lost(params, wrap(course_error - err[I_DRIFT]))
+    corroborated = used & (ks.fix_rejected >= CORROBORATING_FIX_COUNT) & (
+        jnp.abs(disagreement) > deg(CORROBORATED_DISAGREEMENT_DEG))
+    # Held, not cleared, while the fixes start counting again after a repositioning (FIX_REACQUIRE_COUNT): cleared
+    # once the compass comes within CORROBORATED_DISAGREEMENT_DEG.
+    compass_near = used & (jnp.abs(disagreement) <= deg(CORROBORATED_DISAGREEMENT_DEG))
+    corroborated_m = jnp.where(corroborated, ks.corroborated_m + lost_distance(jnp.abs(s), dt),
+                               jnp.where(compass_near, 0.0, ks.corroborated_m))
     # computed once: selected over err and the 8 x 8 cov, the flag's chain (through the update's d2) was otherwise
     # recomputed per element, and the Kalman step ran 2.3x slower (bench_modes; 1.3x with it).
     lost_long = (lost_m > params.filter_reacquire_lost_m) | (rejected_m > params.filter_reacquire_m)
-    restart = computed_once((used & lost_long) | (valid & lost_elsewhere & far_now))
+    restart = computed_once((used & (lost_long | (corroborated_m > CORROBORATED_M)))
+                           | (valid & lost_elsewhere & far_now))
     start = jnp.zeros(N_STATES).at[I_DRIFT].set(course_error)
     err = jnp.where(restart & _COURSE, start, err)
     cov = jnp.where(restart & _COURSE_BLOCK, p0, cov)
     zero = jnp.zeros_like(disagreement)
-    watch = dict(disagreement=disagreement, lost_m=lost_m, rejected_m=rejected_m)
+    watch = dict(disagreement=disagreement, lost_m=lost_m, rejected_m=rejected_m, corroborated_m=corroborated_m)
     return err, cov, restart, {k: jnp.where(restart, zero, v) for k, v in watch.items()}
 
 
