@@ -285,9 +285,9 @@ def _reacquire(params, ks, err, cov, p0, nu, d2, used, valid, s, dt, course_erro
     Below filter_reacquire_large_deg the compass alone is not believed (a car park turns it 30 deg for 100-500 m),
     but fixes rejected CORROBORATING_FIX_COUNT times in a row say the course is wrong too: a running disagreement
     beyond CORROBORATED_DISAGREEMENT_DEG so corroborated for CORROBORATED_M restarts the course as well.  A drive
-    started in a garage whose first 30 s of fixes had pulled the course from 62 to 54 deg off was left to the
+    started in a garage whose first 30 s of fixes had pulled the course from 61 to 54 deg off was left to the
     fixes, which move a course that far off by ~0.3 deg/s (their linear error model; dth2's sigma was 0.8 deg with
-    the course 50 deg off): 8-14 deg RMSE with fixes, 0.5-1.2 without (stop 91).
+    the course 50 deg off): matrix garage starts 8-16 deg RMSE with the fixes, 0.85-1.2 without (stop 91).
     Returns (err, cov, restarted, the watch fields of KalmanState).
     """
     keep = jnp.exp(-jnp.abs(s) / params.filter_check_m)
