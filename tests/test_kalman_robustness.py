@@ -127,16 +127,16 @@ def test_kalman_mode_finds_its_heading_after_a_garage_start_and_says_when_it_can
     assert np.all(reliability[(t > 120.0)] > floor)
 
 
-
 @pytest.mark.slow
 def test_kalman_mode_with_fixes_restarts_a_garage_course_the_compass_and_the_fixes_both_contradict():
     """mixed/garage_start/102 with its 1-Hz fixes: the course started 61 deg off from the garage's compass, and the
     fixes of the first 30 s (the car still inside) pulled it to 54 deg off, below filter_reacquire_large_deg, so the
     clean compass outside could not restart it; the fixes, rejected in a row, moved it by ~0.3 deg/s while dth2's
     sigma said 0.8 deg.  Until stop 91: 10.7 deg RMSE after the first minute on the 15-minute drive (0.85 without the
-    fixes), 36 deg on these 300 s.  Now the compass's disagreement beyond CORROBORATED_DISAGREEMENT_DEG, with the fixes
-    rejected CORROBORATING_FIX_COUNT times in a row, restarts the course after CORROBORATED_M (the count held while a
-    repositioning starts the fixes' count again): within 25 s of leaving the garage, 0.4 deg on the 15-minute drive."""
+    fixes), 20.8 deg on these 300 s.  Now the compass's disagreement beyond CORROBORATED_DISAGREEMENT_DEG, with the
+    fixes rejected CORROBORATING_FIX_COUNT times in a row, restarts the course after CORROBORATED_M (the count held
+    while a repositioning starts the fixes' count again): within 25 s of leaving the garage, 0.4 deg on the 15-minute
+    drive."""
     drive = sc.make_drive("mixed", "garage_start", 102, duration_s=300.0)
     out = run_drive(drive, mode="kalman")
     err = heading_error_deg(out, drive)
