@@ -262,7 +262,7 @@ CORROBORATED_DISAGREEMENT_DEG = 20.0
 CORROBORATED_M = 50.0
 """Metres driven so corroborated (counted as ``offset_filter.lost_distance``) after which the course restarts from the
 compass.  Chosen on the matrix's seeds 101-109 with 1-Hz fixes (10 / 30 / 50 / 100 m: the garage starts mended at 10-50
-m, two of five at 100 m, where the repositioning after FIX_REACQUIRE_COUNT fixes clears the count at parking speeds;
+m, two of four at 100 m, where the repositioning after FIX_REACQUIRE_COUNT fixes clears the count at parking speeds;
 docs/tuning.md, stop 91)."""
 
 
