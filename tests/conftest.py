@@ -90,9 +90,9 @@ HEAVY_FILES_FIRST = ("test_kalman.py", "test_identify_fixes.py", "test_demo.py",
                      "test_soft_iron.py", "test_fmu_native.py", "test_fix_alignment.py", "test_robustness.py",
                      "test_warnings.py", "test_compass_fit.py", "test_identify_from_zero.py", "test_shifted_hard_iron.py",
                      "test_readme.py", "test_fmu_cosim.py")
-"""Files that take one to ten minutes each, longest first (``--durations=80`` summed per file, stop 92: test_kalman.py
-577 s, test_identify_fixes.py 467 s, test_demo.py 255 s, test_fmu.py 254 s, ... test_stuck_wheel.py 162 s, which had
-run among the last files, ... test_compass_fit.py 54 s), run first.  xdist's
+"""Files that take half a minute to ten minutes each, longest first (``--durations=80`` summed per file, stop 92:
+test_kalman.py 577 s, test_identify_fixes.py 467 s, test_demo.py 255 s, test_fmu.py 254 s, ... test_stuck_wheel.py
+162 s, which had run among the last files, ... test_compass_fit.py 54 s), run first.  xdist's
 ``--dist loadfile`` hands the files out one at a time as a worker frees up; longest first, the two workers end
 together.  In alphabetical order the long files came last and one worker ran them alone while the other sat idle; and
 pytest-xdist 3.6 on reorders the files by their number of tests unless ``--no-loadscope-reorder`` (``addopts``), which
