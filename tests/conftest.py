@@ -84,12 +84,12 @@ def traced_constants():
     return patched
 
 
-HEAVY_FILES_FIRST = ("test_kalman.py", "test_identify_fixes.py", "test_demo.py", "test_fmu.py", "test_identify_recovery.py",
-                     "test_identify.py", "test_fleet.py", "test_scenarios.py", "test_stuck_wheel.py", "test_importers.py",
-                     "test_hard_iron.py", "test_sample_rate.py", "test_calibration.py", "test_model.py",
-                     "test_soft_iron.py", "test_fmu_native.py", "test_fix_alignment.py", "test_robustness.py",
-                     "test_warnings.py", "test_compass_fit.py", "test_identify_from_zero.py", "test_shifted_hard_iron.py",
-                     "test_readme.py", "test_fmu_cosim.py")
+HEAVY_FILES_FIRST = ("test_kalman.py", "test_identify_fixes.py", "test_demo.py", "test_fmu.py",
+                     "test_identify_recovery.py", "test_identify.py", "test_fleet.py", "test_scenarios.py",
+                     "test_stuck_wheel.py", "test_importers.py", "test_hard_iron.py", "test_sample_rate.py",
+                     "test_calibration.py", "test_model.py", "test_soft_iron.py", "test_fmu_native.py",
+                     "test_fix_alignment.py", "test_robustness.py", "test_warnings.py", "test_compass_fit.py",
+                     "test_identify_from_zero.py", "test_shifted_hard_iron.py", "test_readme.py", "test_fmu_cosim.py")
 """Files that take half a minute to ten minutes each, longest first (``--durations=80`` summed per file, stop 92:
 test_kalman.py 577 s, test_identify_fixes.py 467 s, test_demo.py 255 s, test_fmu.py 254 s, ... test_stuck_wheel.py
 162 s, which had run among the last files, ... test_compass_fit.py 54 s), run first.  xdist's
